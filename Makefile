@@ -1,0 +1,97 @@
+# arbor - build, test, run, bench.
+#
+#   make            build build/arbord (installs missing dependencies first)
+#   make run        serve/render the models in models/ (see README.md)
+#   make test       every test; last line "N passed, M failed"
+#   make models     regenerate the procedural models in models/ (SIZE=large for big ones)
+#   make bench      the benchmark tables of docs/BENCH.md
+#   make bench-embree   the same with Intel Embree side by side
+#   make asan       build and test with AddressSanitizer + UBSan
+#
+# MARCH=-march=native by default; override with MARCH= for a portable build.
+
+CC      ?= cc
+MARCH   ?= -march=native
+OPT     ?= -O2
+CFLAGS  ?=
+SHARED  ?= $(abspath ../shared)
+BUILD   ?= build
+
+# Embree is optional: compiled in when its header is installed (make bench-embree installs it).
+EMBREE  ?= $(shell test -f /usr/include/embree3/rtcore.h && echo 1)
+
+ARBOR_CFLAGS = -std=c11 -Wall -Wextra -Werror $(OPT) $(MARCH) -D_POSIX_C_SOURCE=200809L \
+               -Iinclude -MMD -MP -pthread $(CFLAGS)
+LDLIBS  = -lmicrohttpd -lcjson -lpng -lz -lpthread -lm
+ifeq ($(EMBREE),1)
+ARBOR_CFLAGS += -DARBOR_HAVE_EMBREE
+LDLIBS  += -lembree3
+endif
+
+LIB_SRC  = $(wildcard src/core/*.c src/geom/*.c src/accel/*.c src/render/*.c src/store/*.c src/server/*.c)
+CLI_SRC  = $(wildcard src/cli/*.c)
+TEST_SRC = $(wildcard tests/unit/test_*.c)
+LIB_OBJ  = $(LIB_SRC:%.c=$(BUILD)/obj/%.o)
+CLI_OBJ  = $(CLI_SRC:%.c=$(BUILD)/obj/%.o)
+TEST_BIN = $(TEST_SRC:tests/unit/%.c=$(BUILD)/tests/%)
+UNITY    = $(BUILD)/deps/unity
+TEST_SUPPORT_OBJ = $(BUILD)/obj/tests/unit/support.o $(BUILD)/obj/unity.o
+
+.PHONY: all deps run test unit models bench bench-embree asan clean
+.DEFAULT_GOAL := all
+
+all: $(BUILD)/arbord
+
+# Quick and silent when everything is installed; installs what is missing.
+deps:
+	@scripts/deps.sh
+
+$(BUILD)/obj/%.o: %.c | deps
+	@mkdir -p $(dir $@)
+	$(CC) $(ARBOR_CFLAGS) -c $< -o $@
+
+$(BUILD)/libarbor.a: $(LIB_OBJ)
+	@rm -f $@
+	ar rcs $@ $^
+
+$(BUILD)/arbord: $(CLI_OBJ) $(BUILD)/libarbor.a
+	$(CC) $(ARBOR_CFLAGS) -o $@ $(CLI_OBJ) $(BUILD)/libarbor.a $(LDLIBS)
+
+$(BUILD)/obj/unity.o: | deps
+	@mkdir -p $(dir $@)
+	$(CC) -std=c11 $(OPT) -c $(UNITY)/unity.c -o $@
+
+$(BUILD)/obj/tests/unit/%.o: tests/unit/%.c | deps
+	@mkdir -p $(dir $@)
+	$(CC) $(ARBOR_CFLAGS) -I$(UNITY) -Itests/unit -c $< -o $@
+
+$(BUILD)/tests/%: $(BUILD)/obj/tests/unit/%.o $(TEST_SUPPORT_OBJ) $(BUILD)/libarbor.a
+	@mkdir -p $(dir $@)
+	$(CC) $(ARBOR_CFLAGS) -o $@ $^ $(LDLIBS)
+
+unit: $(TEST_BIN)
+
+test: $(BUILD)/arbord $(TEST_BIN)
+	@ARBOR_SHARED_MODELS=$(SHARED)/models tests/run.sh $(TEST_BIN)
+
+run: $(BUILD)/arbord
+	$(BUILD)/arbord render --model models/cornell.obj --mode shaded --spp 4 -o $(BUILD)/cornell.png
+
+models: $(BUILD)/arbord
+	$(BUILD)/arbord gen --all $(if $(SIZE),--size $(SIZE)) --dir models
+
+bench: $(BUILD)/arbord
+	$(BUILD)/arbord bench $(foreach m,$(wildcard $(SHARED)/models/*.obj $(SHARED)/models/*.obj.gz),--model $(m))
+
+bench-embree:
+	@scripts/deps.sh --embree
+	$(MAKE) EMBREE=1 $(BUILD)/arbord
+	$(BUILD)/arbord bench --embree $(foreach m,$(wildcard $(SHARED)/models/*.obj $(SHARED)/models/*.obj.gz),--model $(m))
+
+asan:
+	$(MAKE) BUILD=build/asan OPT="-O1 -g -fsanitize=address,undefined -fno-omit-frame-pointer" test
+
+clean:
+	rm -rf $(BUILD)/obj $(BUILD)/tests $(BUILD)/arbord $(BUILD)/libarbor.a
+
+-include $(shell find $(BUILD)/obj -name '*.d' 2>/dev/null)

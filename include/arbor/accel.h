@@ -1,0 +1,90 @@
+/*
+ * accel.h - the acceleration-structure interface: one small API over every
+ * tree kind (bvh, kd) and builder (spatial, median, mean, sah).
+ *
+ * The tracer, the statistics and the server hold an opaque arbor_accel and
+ * never know which kind it is. arbor_accel_build returns a tree the caller
+ * owns and releases with arbor_accel_free; the tree keeps a pointer to the
+ * mesh, which must outlive it and stay unchanged. A built tree is immutable:
+ * any number of threads may trace through it at once without locks.
+ *
+ * Names ("bvh", "kd", "spatial", "median", "mean", "sah") are the same
+ * strings in the CLI, the JSON API and the viewer.
+ */
+#ifndef ARBOR_ACCEL_H
+#define ARBOR_ACCEL_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "arbor/err.h"
+#include "arbor/mesh.h"
+#include "arbor/ray.h"
+
+typedef enum { ARBOR_ACCEL_BVH, ARBOR_ACCEL_KD, ARBOR_ACCEL_KIND_COUNT } arbor_accel_kind;
+
+typedef enum {
+    ARBOR_BUILD_SPATIAL,  /* middle of the node's (centroid) bounds, longest axis */
+    ARBOR_BUILD_MEDIAN,   /* median centroid along the longest axis */
+    ARBOR_BUILD_MEAN,     /* mean centroid along the longest axis */
+    ARBOR_BUILD_SAH,      /* surface area heuristic */
+    ARBOR_BUILDER_COUNT
+} arbor_builder;
+
+typedef struct {
+    arbor_accel_kind kind;
+    arbor_builder builder;
+    int threads;          /* build threads; 0 = one per core */
+    int max_leaf_tris;    /* leaf size limit; 0 = the kind's default */
+    int max_depth;        /* 0 = the kind's default (kd: 8 + 1.3 log2 N) */
+    float cost_traverse;  /* SAH cost of visiting an inner node; 0 = default */
+    float cost_intersect; /* SAH cost of one triangle test; 0 = default */
+    float empty_bonus;    /* kd SAH: fraction of cost saved for an empty side; <0 = default */
+} arbor_build_opts;
+
+/* Statistics of a built tree (DESIGN.md). sah_cost is
+ * sum over inner nodes A(n)/A(root) + sum over leaves A(l)/A(root) * N(l). */
+typedef struct {
+    double build_ms;
+    uint64_t nodes, leaves, empty_leaves;
+    uint32_t max_depth;
+    double mean_leaf_depth;     /* over all leaves; the root is depth 0 */
+    double mean_tris_per_leaf;  /* over non-empty leaves */
+    uint64_t refs;              /* triangle references in leaves */
+    uint64_t bytes;             /* memory the tree holds (nodes + index arrays) */
+    double sah_cost;
+} arbor_tree_stats;
+
+/* Work done by one traced ray, for the heat mode and per-ray statistics. */
+typedef struct {
+    uint64_t nodes;  /* nodes visited */
+    uint64_t tris;   /* triangle tests */
+} arbor_trace_counts;
+
+typedef struct arbor_accel arbor_accel;
+
+/* Defaults for a kind and builder. */
+void arbor_build_opts_init(arbor_build_opts *o, arbor_accel_kind kind, arbor_builder builder);
+
+const char *arbor_accel_kind_name(arbor_accel_kind kind);
+const char *arbor_builder_name(arbor_builder builder);
+/* Parse a name; false for an unknown one. */
+bool arbor_accel_kind_parse(const char *name, arbor_accel_kind *kind);
+bool arbor_builder_parse(const char *name, arbor_builder *builder);
+
+/* Builds a tree over m. NULL on failure (invalid options, no memory). */
+arbor_accel *arbor_accel_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_err *e);
+
+/* Closest hit in (r->tmin, r->tmax); on a hit shrinks r->tmax and fills h. */
+bool arbor_accel_intersect(const arbor_accel *a, arbor_ray *r, arbor_hit *h);
+/* The same, also adding the work done to *c. */
+bool arbor_accel_intersect_counted(const arbor_accel *a, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
+/* Any hit in (r->tmin, r->tmax). */
+bool arbor_accel_occluded(const arbor_accel *a, const arbor_ray *r);
+
+void arbor_accel_stats(const arbor_accel *a, arbor_tree_stats *s);
+const arbor_mesh *arbor_accel_mesh(const arbor_accel *a);
+const arbor_build_opts *arbor_accel_opts(const arbor_accel *a);
+void arbor_accel_free(arbor_accel *a);
+
+#endif

@@ -1,0 +1,87 @@
+/*
+ * mesh.h - a triangle mesh in memory: positions, triangles, materials.
+ *
+ * A mesh owns all of its arrays; arbor_mesh_free releases them. Triangles are
+ * triples of vertex indices (0-based, always < nverts once a loader returns
+ * success). Every triangle has a material index into mats; mats[0] is the
+ * default material (grey Lambert), present in every finished mesh. `bounds` is
+ * the box of the vertices that triangles use (PROTOCOL.md's B), set by
+ * arbor_mesh_finish. `warnings` collects problems that did not stop the load
+ * (a refused or missing mtllib, for instance), for the caller to report.
+ *
+ * Acceleration structures keep a pointer to the mesh they were built over and
+ * never modify it; the mesh must outlive them.
+ */
+#ifndef ARBOR_MESH_H
+#define ARBOR_MESH_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "arbor/err.h"
+#include "arbor/vec.h"
+
+#define ARBOR_MATERIAL_NAME_MAX 64
+
+typedef struct {
+    char name[ARBOR_MATERIAL_NAME_MAX];
+    arbor_vec3 kd;  /* diffuse colour */
+    arbor_vec3 ks;  /* specular colour */
+    arbor_vec3 ke;  /* emission */
+    float ns;       /* specular exponent */
+    float d;        /* opacity */
+    int illum;      /* MTL illumination model; 3 and 5 are mirrors */
+} arbor_material;
+
+typedef struct {
+    uint32_t nverts, ntris, nmats;
+    arbor_vec3 *verts;     /* nverts positions */
+    uint32_t *tri_verts;   /* 3 * ntris vertex indices */
+    uint32_t *tri_mat;     /* ntris material indices into mats */
+    arbor_material *mats;  /* nmats materials; mats[0] is the default */
+    arbor_aabb bounds;     /* of the vertices triangles use */
+    char **warnings;       /* nwarnings owned strings */
+    uint32_t nwarnings;
+    /* capacities of the growable arrays above (loader bookkeeping) */
+    uint32_t cap_verts, cap_tris, cap_mats, cap_warnings;
+} arbor_mesh;
+
+/* An empty mesh (no arrays allocated); safe to free. */
+void arbor_mesh_init(arbor_mesh *m);
+void arbor_mesh_free(arbor_mesh *m);
+
+/* Growing the mesh. Each returns false (and fills e) only when memory runs out. */
+bool arbor_mesh_add_vert(arbor_mesh *m, arbor_vec3 p, arbor_err *e);
+bool arbor_mesh_add_tri(arbor_mesh *m, uint32_t a, uint32_t b, uint32_t c, uint32_t mat, arbor_err *e);
+/* Appends a material with the default values and the given name; *index gets its index. */
+bool arbor_mesh_add_material(arbor_mesh *m, const char *name, uint32_t *index, arbor_err *e);
+/* Index of the material called name, or -1. */
+int arbor_mesh_find_material(const arbor_mesh *m, const char *name);
+/* Records a warning (printf-style); silently dropped if memory runs out. */
+void arbor_mesh_warn(arbor_mesh *m, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+
+/* Checks every index against nverts, ensures the default material exists,
+ * computes bounds. Loaders call it last; tests that build meshes by hand too. */
+bool arbor_mesh_finish(arbor_mesh *m, arbor_err *e);
+
+/* The default material's values (grey 0.7 Lambert, no specular). */
+void arbor_material_default(arbor_material *mat, const char *name);
+/* True for materials the renderer treats as mirrors (illum 3 or 5, or Ks >= 0.5). */
+bool arbor_material_is_mirror(const arbor_material *mat);
+
+static inline void arbor_mesh_tri(const arbor_mesh *m, uint32_t t, arbor_vec3 *a, arbor_vec3 *b, arbor_vec3 *c)
+{
+    const uint32_t *i = m->tri_verts + 3 * (size_t)t;
+    *a = m->verts[i[0]];
+    *b = m->verts[i[1]];
+    *c = m->verts[i[2]];
+}
+
+/* The triangle's bounding box. */
+arbor_aabb arbor_mesh_tri_bounds(const arbor_mesh *m, uint32_t t);
+
+/* Unnormalised geometric normal (b - a) x (c - a). */
+arbor_vec3 arbor_mesh_tri_normal(const arbor_mesh *m, uint32_t t);
+
+#endif

@@ -1,0 +1,137 @@
+/*
+ * accel.c - the common acceleration-structure interface: option defaults,
+ * names, and dispatch to the kind that built a tree (include/arbor/accel.h).
+ */
+#include <stdlib.h>
+#include <string.h>
+
+#include "accel_impl.h"
+#include "arbor/sys.h"
+
+struct arbor_accel {
+    const arbor_accel_ops *ops;
+    void *impl;
+    const arbor_mesh *mesh;
+    arbor_build_opts opts;
+    arbor_tree_stats stats;
+};
+
+static const char *const kind_names[ARBOR_ACCEL_KIND_COUNT] = {"bvh", "kd"};
+static const char *const builder_names[ARBOR_BUILDER_COUNT] = {"spatial", "median", "mean", "sah"};
+
+void arbor_build_opts_init(arbor_build_opts *o, arbor_accel_kind kind, arbor_builder builder)
+{
+    memset(o, 0, sizeof *o);
+    o->kind = kind;
+    o->builder = builder;
+    o->empty_bonus = -1.0f;
+}
+
+const char *arbor_accel_kind_name(arbor_accel_kind kind)
+{
+    return (unsigned)kind < ARBOR_ACCEL_KIND_COUNT ? kind_names[kind] : "?";
+}
+
+const char *arbor_builder_name(arbor_builder builder)
+{
+    return (unsigned)builder < ARBOR_BUILDER_COUNT ? builder_names[builder] : "?";
+}
+
+bool arbor_accel_kind_parse(const char *name, arbor_accel_kind *kind)
+{
+    for (int i = 0; i < ARBOR_ACCEL_KIND_COUNT; i++)
+        if (strcmp(name, kind_names[i]) == 0) {
+            *kind = (arbor_accel_kind)i;
+            return true;
+        }
+    return false;
+}
+
+bool arbor_builder_parse(const char *name, arbor_builder *builder)
+{
+    for (int i = 0; i < ARBOR_BUILDER_COUNT; i++)
+        if (strcmp(name, builder_names[i]) == 0) {
+            *builder = (arbor_builder)i;
+            return true;
+        }
+    return false;
+}
+
+static bool opts_validate(const arbor_build_opts *o, arbor_err *e)
+{
+    if ((unsigned)o->kind >= ARBOR_ACCEL_KIND_COUNT)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "unknown accel kind %d", (int)o->kind);
+    if ((unsigned)o->builder >= ARBOR_BUILDER_COUNT)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "unknown builder %d", (int)o->builder);
+    if (o->threads < 0)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "threads must be >= 0, not %d", o->threads);
+    if (o->max_leaf_tris < 0)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "max_leaf_tris must be >= 0, not %d", o->max_leaf_tris);
+    if (o->max_depth < 0 || o->max_depth > 64)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "max_depth must be in 0..64, not %d", o->max_depth);
+    if (o->cost_traverse < 0.0f || o->cost_intersect < 0.0f)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "SAH costs must be >= 0");
+    if (o->empty_bonus >= 1.0f)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "empty_bonus must be < 1, not %g", (double)o->empty_bonus);
+    return true;
+}
+
+arbor_accel *arbor_accel_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_err *e)
+{
+    if (!opts_validate(o, e))
+        return NULL;
+    arbor_accel *a = calloc(1, sizeof *a);
+    if (a == NULL) {
+        arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory allocating a tree");
+        return NULL;
+    }
+    a->ops = o->kind == ARBOR_ACCEL_BVH ? &arbor_bvh_ops : &arbor_kd_ops;
+    a->mesh = m;
+    a->opts = *o;
+    double t0 = arbor_now_ms();
+    a->impl = a->ops->build(m, o, &a->stats, e);
+    a->stats.build_ms = arbor_now_ms() - t0;
+    if (a->impl == NULL) {
+        free(a);
+        return NULL;
+    }
+    return a;
+}
+
+bool arbor_accel_intersect(const arbor_accel *a, arbor_ray *r, arbor_hit *h)
+{
+    return a->ops->intersect(a->impl, r, h);
+}
+
+bool arbor_accel_intersect_counted(const arbor_accel *a, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
+{
+    return a->ops->intersect_counted(a->impl, r, h, c);
+}
+
+bool arbor_accel_occluded(const arbor_accel *a, const arbor_ray *r)
+{
+    return a->ops->occluded(a->impl, r);
+}
+
+void arbor_accel_stats(const arbor_accel *a, arbor_tree_stats *s)
+{
+    *s = a->stats;
+}
+
+const arbor_mesh *arbor_accel_mesh(const arbor_accel *a)
+{
+    return a->mesh;
+}
+
+const arbor_build_opts *arbor_accel_opts(const arbor_accel *a)
+{
+    return &a->opts;
+}
+
+void arbor_accel_free(arbor_accel *a)
+{
+    if (a == NULL)
+        return;
+    a->ops->destroy(a->impl);
+    free(a);
+}

@@ -1,0 +1,43 @@
+/* args.c - argument helpers shared by the arbord subcommands (see cli.h). */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "cli.h"
+
+const char *cli_value(const char *cmd, int argc, char **argv, int *i)
+{
+    if (*i + 1 >= argc) {
+        fprintf(stderr, "arbord %s: %s needs a value\n", cmd, argv[*i]);
+        return NULL;
+    }
+    *i += 1;
+    return argv[*i];
+}
+
+bool cli_int(const char *cmd, const char *opt, const char *s, long lo, long hi, int *out)
+{
+    char *end;
+    errno = 0;
+    long v = strtol(s, &end, 10);
+    if (errno != 0 || end == s || *end != '\0' || v < lo || v > hi) {
+        fprintf(stderr, "arbord %s: %s must be a whole number in %ld..%ld, not '%s'\n", cmd, opt, lo, hi, s);
+        return false;
+    }
+    *out = (int)v;
+    return true;
+}
+
+bool cli_float(const char *cmd, const char *opt, const char *s, double lo, double hi, float *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno != 0 || end == s || *end != '\0' || !isfinite(v) || v < lo || v > hi) {
+        fprintf(stderr, "arbord %s: %s must be a number in %g..%g, not '%s'\n", cmd, opt, lo, hi, s);
+        return false;
+    }
+    *out = (float)v;
+    return true;
+}

@@ -1,0 +1,24 @@
+/*
+ * cli.h - the arbord subcommands and the small argument helpers they share.
+ * Each subcommand lives in its own cmd_*.c and returns the process exit code
+ * (0 ok, 1 failure, 2 usage error). Only this layer prints.
+ */
+#ifndef ARBOR_CLI_H
+#define ARBOR_CLI_H
+
+#include <stdbool.h>
+
+int cmd_serve(int argc, char **argv);
+int cmd_render(int argc, char **argv);
+int cmd_stats(int argc, char **argv);
+int cmd_bench(int argc, char **argv);
+int cmd_gen(int argc, char **argv);
+
+/* argv[*i] is an option that takes a value: returns argv[*i + 1] and advances
+ * *i, or prints "arbord CMD: OPT needs a value" and returns NULL. */
+const char *cli_value(const char *cmd, int argc, char **argv, int *i);
+/* Parse a whole number / a finite number in [lo, hi]; prints the error. */
+bool cli_int(const char *cmd, const char *opt, const char *s, long lo, long hi, int *out);
+bool cli_float(const char *cmd, const char *opt, const char *s, double lo, double hi, float *out);
+
+#endif

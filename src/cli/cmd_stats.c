@@ -1,0 +1,144 @@
+/*
+ * cmd_stats.c - arbord stats: build trees over a model and print their
+ * statistics, one row (or one JSON object per line) per kind and builder.
+ */
+#include <cjson/cJSON.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/accel.h"
+#include "arbor/load.h"
+#include "cli.h"
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "usage: arbord stats --model FILE [--accel bvh|kd|all] [--builder NAME|all] [--threads N] [--json]\n"
+            "  builders: spatial, median, mean, sah (default: all); accel default: bvh\n");
+}
+
+static void print_json(const char *model, const arbor_mesh *m, arbor_accel_kind kind, arbor_builder b,
+                       const arbor_tree_stats *s)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "model", model);
+    cJSON_AddNumberToObject(o, "triangles", m->ntris);
+    cJSON_AddStringToObject(o, "accel", arbor_accel_kind_name(kind));
+    cJSON_AddStringToObject(o, "builder", arbor_builder_name(b));
+    cJSON_AddNumberToObject(o, "build_ms", s->build_ms);
+    cJSON_AddNumberToObject(o, "nodes", (double)s->nodes);
+    cJSON_AddNumberToObject(o, "leaves", (double)s->leaves);
+    cJSON_AddNumberToObject(o, "empty_leaves", (double)s->empty_leaves);
+    cJSON_AddNumberToObject(o, "max_depth", s->max_depth);
+    cJSON_AddNumberToObject(o, "mean_leaf_depth", s->mean_leaf_depth);
+    cJSON_AddNumberToObject(o, "mean_tris_per_leaf", s->mean_tris_per_leaf);
+    cJSON_AddNumberToObject(o, "refs", (double)s->refs);
+    cJSON_AddNumberToObject(o, "bytes", (double)s->bytes);
+    cJSON_AddNumberToObject(o, "sah_cost", s->sah_cost);
+    char *text = cJSON_PrintUnformatted(o);
+    if (text != NULL)
+        puts(text);
+    free(text);
+    cJSON_Delete(o);
+}
+
+static void print_header(void)
+{
+    printf("%-5s %-8s %10s %9s %9s %7s %6s %10s %9s %10s %11s %10s\n", "accel", "builder", "build_ms", "nodes",
+           "leaves", "empty", "depth", "leaf_depth", "tris/leaf", "refs", "bytes", "sah_cost");
+}
+
+static void print_row(arbor_accel_kind kind, arbor_builder b, const arbor_tree_stats *s)
+{
+    printf("%-5s %-8s %10.2f %9llu %9llu %7llu %6u %10.2f %9.2f %10llu %11llu %10.2f\n",
+           arbor_accel_kind_name(kind), arbor_builder_name(b), s->build_ms, (unsigned long long)s->nodes,
+           (unsigned long long)s->leaves, (unsigned long long)s->empty_leaves, s->max_depth, s->mean_leaf_depth,
+           s->mean_tris_per_leaf, (unsigned long long)s->refs, (unsigned long long)s->bytes, s->sah_cost);
+}
+
+int cmd_stats(int argc, char **argv)
+{
+    const char *model = NULL, *accel = "bvh", *builder = "all";
+    bool json = false;
+    int threads = 0;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            usage(stdout);
+            return 0;
+        } else if (strcmp(a, "--json") == 0) {
+            json = true;
+        } else if (strcmp(a, "--model") == 0) {
+            if ((model = cli_value("stats", argc, argv, &i)) == NULL) return 2;
+        } else if (strcmp(a, "--accel") == 0) {
+            if ((accel = cli_value("stats", argc, argv, &i)) == NULL) return 2;
+        } else if (strcmp(a, "--builder") == 0) {
+            if ((builder = cli_value("stats", argc, argv, &i)) == NULL) return 2;
+        } else if (strcmp(a, "--threads") == 0) {
+            const char *v = cli_value("stats", argc, argv, &i);
+            if (v == NULL || !cli_int("stats", "--threads", v, 0, 1024, &threads)) return 2;
+        } else {
+            fprintf(stderr, "arbord stats: unknown option '%s'\n", a);
+            usage(stderr);
+            return 2;
+        }
+    }
+    if (model == NULL) {
+        fprintf(stderr, "arbord stats: --model FILE is required\n");
+        usage(stderr);
+        return 2;
+    }
+    bool all_kinds = strcmp(accel, "all") == 0, all_builders = strcmp(builder, "all") == 0;
+    arbor_accel_kind kind = ARBOR_ACCEL_BVH;
+    arbor_builder one_builder = ARBOR_BUILD_SAH;
+    if (!all_kinds && !arbor_accel_kind_parse(accel, &kind)) {
+        fprintf(stderr, "arbord stats: unknown accel '%s' (bvh, kd, all)\n", accel);
+        return 2;
+    }
+    if (!all_builders && !arbor_builder_parse(builder, &one_builder)) {
+        fprintf(stderr, "arbord stats: unknown builder '%s' (spatial, median, mean, sah, all)\n", builder);
+        return 2;
+    }
+
+    arbor_mesh mesh;
+    arbor_err err;
+    if (!arbor_load_model(model, &mesh, &err)) {
+        fprintf(stderr, "arbord stats: %s\n", err.msg);
+        return 1;
+    }
+    for (uint32_t w = 0; w < mesh.nwarnings; w++)
+        fprintf(stderr, "arbord stats: warning: %s\n", mesh.warnings[w]);
+    if (!json) {
+        printf("model %s: %u triangles, %u vertices\n", model, mesh.ntris, mesh.nverts);
+        print_header();
+    }
+    int status = 0;
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT && status == 0; k++) {
+        if (!all_kinds && k != (int)kind)
+            continue;
+        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
+            if (!all_builders && b != (int)one_builder)
+                continue;
+            arbor_build_opts opts;
+            arbor_build_opts_init(&opts, (arbor_accel_kind)k, (arbor_builder)b);
+            opts.threads = threads;
+            arbor_accel *tree = arbor_accel_build(&mesh, &opts, &err);
+            if (tree == NULL) {
+                fprintf(stderr, "arbord stats: %s %s: %s\n", arbor_accel_kind_name((arbor_accel_kind)k),
+                        arbor_builder_name((arbor_builder)b), err.msg);
+                status = 1;
+                break;
+            }
+            arbor_tree_stats s;
+            arbor_accel_stats(tree, &s);
+            if (json)
+                print_json(model, &mesh, (arbor_accel_kind)k, (arbor_builder)b, &s);
+            else
+                print_row((arbor_accel_kind)k, (arbor_builder)b, &s);
+            arbor_accel_free(tree);
+        }
+    }
+    arbor_mesh_free(&mesh);
+    return status;
+}

@@ -1,0 +1,38 @@
+/* err.c - filling arbor_err records (see include/arbor/err.h). */
+#include <stdarg.h>
+#include <stdio.h>
+
+#include "arbor/err.h"
+
+bool arbor_fail(arbor_err *e, arbor_status status, const char *fmt, ...)
+{
+    if (e == NULL)
+        return false;
+    e->status = status;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(e->msg, sizeof e->msg, fmt, ap);
+    va_end(ap);
+    return false;
+}
+
+void arbor_err_clear(arbor_err *e)
+{
+    if (e == NULL)
+        return;
+    e->status = ARBOR_OK;
+    e->msg[0] = '\0';
+}
+
+const char *arbor_status_name(arbor_status status)
+{
+    switch (status) {
+    case ARBOR_OK: return "ok";
+    case ARBOR_ERR_IO: return "io";
+    case ARBOR_ERR_PARSE: return "parse";
+    case ARBOR_ERR_INVALID: return "invalid";
+    case ARBOR_ERR_NOMEM: return "nomem";
+    case ARBOR_ERR_CANCELLED: return "cancelled";
+    }
+    return "unknown";
+}

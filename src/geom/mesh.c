@@ -1,0 +1,158 @@
+/*
+ * mesh.c - growing, finishing and freeing triangle meshes
+ * (see include/arbor/mesh.h).
+ */
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/mesh.h"
+
+void arbor_mesh_init(arbor_mesh *m)
+{
+    memset(m, 0, sizeof *m);
+    m->bounds = aabb_empty();
+}
+
+void arbor_mesh_free(arbor_mesh *m)
+{
+    free(m->verts);
+    free(m->tri_verts);
+    free(m->tri_mat);
+    free(m->mats);
+    for (uint32_t i = 0; i < m->nwarnings; i++)
+        free(m->warnings[i]);
+    free(m->warnings);
+    arbor_mesh_init(m);
+}
+
+/* Makes room for one more element in an array of *cap elements of `size`
+ * bytes (doubling), so appends are amortised O(1). */
+static bool grow(void **arr, uint32_t *cap, uint32_t count, size_t size, arbor_err *e)
+{
+    if (count < *cap)
+        return true;
+    if (*cap >= UINT32_MAX / 2)
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "mesh too large (%u elements)", count);
+    uint32_t ncap = *cap ? *cap * 2 : 256;
+    void *p = realloc(*arr, (size_t)ncap * size);
+    if (p == NULL)
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory growing mesh to %u elements", ncap);
+    *arr = p;
+    *cap = ncap;
+    return true;
+}
+
+bool arbor_mesh_add_vert(arbor_mesh *m, arbor_vec3 p, arbor_err *e)
+{
+    if (!grow((void **)&m->verts, &m->cap_verts, m->nverts, sizeof *m->verts, e))
+        return false;
+    m->verts[m->nverts++] = p;
+    return true;
+}
+
+bool arbor_mesh_add_tri(arbor_mesh *m, uint32_t a, uint32_t b, uint32_t c, uint32_t mat, arbor_err *e)
+{
+    uint32_t cap = m->cap_tris;
+    if (!grow((void **)&m->tri_mat, &cap, m->ntris, sizeof *m->tri_mat, e))
+        return false;
+    if (cap != m->cap_tris) {
+        uint32_t *tv = realloc(m->tri_verts, (size_t)cap * 3 * sizeof *tv);
+        if (tv == NULL)
+            return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory growing mesh to %u triangles", cap);
+        m->tri_verts = tv;
+        m->cap_tris = cap;
+    }
+    uint32_t *t = m->tri_verts + 3 * (size_t)m->ntris;
+    t[0] = a;
+    t[1] = b;
+    t[2] = c;
+    m->tri_mat[m->ntris++] = mat;
+    return true;
+}
+
+void arbor_material_default(arbor_material *mat, const char *name)
+{
+    memset(mat, 0, sizeof *mat);
+    snprintf(mat->name, sizeof mat->name, "%s", name);
+    mat->kd = vec3(0.7f, 0.7f, 0.7f);
+    mat->ns = 1.0f;
+    mat->d = 1.0f;
+    mat->illum = 1;
+}
+
+bool arbor_material_is_mirror(const arbor_material *mat)
+{
+    return mat->illum == 3 || mat->illum == 5 || (mat->ks.x >= 0.5f && mat->ks.y >= 0.5f && mat->ks.z >= 0.5f);
+}
+
+bool arbor_mesh_add_material(arbor_mesh *m, const char *name, uint32_t *index, arbor_err *e)
+{
+    if (!grow((void **)&m->mats, &m->cap_mats, m->nmats, sizeof *m->mats, e))
+        return false;
+    arbor_material_default(&m->mats[m->nmats], name);
+    *index = m->nmats++;
+    return true;
+}
+
+int arbor_mesh_find_material(const arbor_mesh *m, const char *name)
+{
+    for (uint32_t i = 0; i < m->nmats; i++)
+        if (strcmp(m->mats[i].name, name) == 0)
+            return (int)i;
+    return -1;
+}
+
+void arbor_mesh_warn(arbor_mesh *m, const char *fmt, ...)
+{
+    char buf[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    if (!grow((void **)&m->warnings, &m->cap_warnings, m->nwarnings, sizeof *m->warnings, NULL))
+        return;
+    char *s = strdup(buf);
+    if (s != NULL)
+        m->warnings[m->nwarnings++] = s;
+}
+
+bool arbor_mesh_finish(arbor_mesh *m, arbor_err *e)
+{
+    if (m->nmats == 0) {
+        uint32_t idx;
+        if (!arbor_mesh_add_material(m, "default", &idx, e))
+            return false;
+    }
+    arbor_aabb b = aabb_empty();
+    for (uint32_t t = 0; t < m->ntris; t++) {
+        const uint32_t *i = m->tri_verts + 3 * (size_t)t;
+        for (int k = 0; k < 3; k++) {
+            if (i[k] >= m->nverts)
+                return arbor_fail(e, ARBOR_ERR_INVALID, "triangle %u: vertex index %u out of range (%u vertices)",
+                                  t, i[k], m->nverts);
+            b = aabb_grow(b, m->verts[i[k]]);
+        }
+        if (m->tri_mat[t] >= m->nmats)
+            return arbor_fail(e, ARBOR_ERR_INVALID, "triangle %u: material %u out of range (%u materials)",
+                              t, m->tri_mat[t], m->nmats);
+    }
+    m->bounds = b;
+    return true;
+}
+
+arbor_aabb arbor_mesh_tri_bounds(const arbor_mesh *m, uint32_t t)
+{
+    arbor_vec3 a, b, c;
+    arbor_mesh_tri(m, t, &a, &b, &c);
+    arbor_aabb box = {vec3_min(a, vec3_min(b, c)), vec3_max(a, vec3_max(b, c))};
+    return box;
+}
+
+arbor_vec3 arbor_mesh_tri_normal(const arbor_mesh *m, uint32_t t)
+{
+    arbor_vec3 a, b, c;
+    arbor_mesh_tri(m, t, &a, &b, &c);
+    return vec3_cross(vec3_sub(b, a), vec3_sub(c, a));
+}
