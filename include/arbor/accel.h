@@ -83,6 +83,14 @@ bool arbor_accel_intersect_counted(const arbor_accel *a, arbor_ray *r, arbor_hit
 bool arbor_accel_occluded(const arbor_accel *a, const arbor_ray *r);
 
 void arbor_accel_stats(const arbor_accel *a, arbor_tree_stats *s);
+
+/* Walks the built tree and checks its invariants independently of the
+ * builder: every triangle referenced where it must be (bvh: in exactly one
+ * leaf; kd: in every leaf whose cell its clipped box overlaps, and nowhere it
+ * does not touch), child bounds inside the parent's, and the statistics
+ * (nodes, leaves, empty leaves, refs, depths, sah_cost) equal to what the walk
+ * counts. False with the first violation in e. For tests and debugging. */
+bool arbor_accel_validate(const arbor_accel *a, arbor_err *e);
 const arbor_mesh *arbor_accel_mesh(const arbor_accel *a);
 const arbor_build_opts *arbor_accel_opts(const arbor_accel *a);
 void arbor_accel_free(arbor_accel *a);

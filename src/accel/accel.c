@@ -118,6 +118,11 @@ void arbor_accel_stats(const arbor_accel *a, arbor_tree_stats *s)
     *s = a->stats;
 }
 
+bool arbor_accel_validate(const arbor_accel *a, arbor_err *e)
+{
+    return a->ops->validate(a->impl, a->mesh, &a->stats, e);
+}
+
 const arbor_mesh *arbor_accel_mesh(const arbor_accel *a)
 {
     return a->mesh;

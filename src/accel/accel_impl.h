@@ -18,6 +18,8 @@ typedef struct {
     bool (*intersect)(const void *impl, arbor_ray *r, arbor_hit *h);
     bool (*intersect_counted)(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
     bool (*occluded)(const void *impl, const arbor_ray *r);
+    /* See arbor_accel_validate; stats are the ones build filled. */
+    bool (*validate)(const void *impl, const arbor_mesh *m, const arbor_tree_stats *stats, arbor_err *e);
     void (*destroy)(void *impl);
 } arbor_accel_ops;
 

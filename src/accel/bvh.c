@@ -10,4 +10,4 @@ static void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tre
     return (void *)0;
 }
 
-const arbor_accel_ops arbor_bvh_ops = {bvh_build, 0, 0, 0, 0};
+const arbor_accel_ops arbor_bvh_ops = {bvh_build, 0, 0, 0, 0, 0};

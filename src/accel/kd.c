@@ -10,4 +10,4 @@ static void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree
     return (void *)0;
 }
 
-const arbor_accel_ops arbor_kd_ops = {kd_build, 0, 0, 0, 0};
+const arbor_accel_ops arbor_kd_ops = {kd_build, 0, 0, 0, 0, 0};
