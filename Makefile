@@ -34,7 +34,7 @@ TEST_SRC = $(wildcard tests/unit/test_*.c)
 LIB_OBJ  = $(LIB_SRC:%.c=$(BUILD)/obj/%.o)
 CLI_OBJ  = $(CLI_SRC:%.c=$(BUILD)/obj/%.o)
 TEST_BIN = $(TEST_SRC:tests/unit/%.c=$(BUILD)/tests/%)
-UNITY    = $(BUILD)/deps/unity
+UNITY    = build/deps/unity/src
 TEST_SUPPORT_OBJ = $(BUILD)/obj/tests/unit/support.o $(BUILD)/obj/unity.o
 
 .PHONY: all deps run test unit models bench bench-embree asan clean

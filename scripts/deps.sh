@@ -46,7 +46,7 @@ fi
 # Unity: Debian's cjson source package carries it in tests/unity/src. Fetch the
 # source with a private sources list (deb-src of the system's own suites) so the
 # system's apt configuration is left untouched.
-if [ ! -f "$unity_dir/unity.c" ]; then
+if [ ! -f "$unity_dir/src/unity.c" ] || [ ! -f "$unity_dir/examples/unity_config.h" ]; then
     work="$root/build/deps/apt-src"
     rm -rf "$work"
     mkdir -p "$work/sources.list.d" "$work/lists/partial" "$work/get"
@@ -58,10 +58,15 @@ if [ ! -f "$unity_dir/unity.c" ]; then
           -o "Dir::State::Lists=$work/lists")
     echo "deps: fetching Unity from Debian's cjson source package"
     apt-get "${opts[@]}" update -qq
-    (cd "$work/get" && apt-get "${opts[@]}" source --download-only -qq cjson >/dev/null)
+    # apt warns that it downloads unsandboxed as root; that is expected here
+    (cd "$work/get" && apt-get "${opts[@]}" source --download-only -qq cjson 2>&1 >/dev/null |
+        grep -v 'unsandboxed as root' >&2 || true)
     orig=$(ls "$work"/get/cjson_*.orig.tar.gz | head -n 1)
+    rm -rf "$unity_dir"
     mkdir -p "$unity_dir"
-    tar -xzf "$orig" -C "$unity_dir" --strip-components=4 --wildcards '*/tests/unity/src/*'
+    # unity_internals.h includes ../examples/unity_config.h, so keep both folders
+    tar -xzf "$orig" -C "$unity_dir" --strip-components=3 --wildcards \
+        '*/tests/unity/src/*' '*/tests/unity/examples/unity_config.h'
     rm -rf "$work"
     echo "deps: Unity in ${unity_dir#$root/}"
 fi

@@ -1,0 +1,195 @@
+/*
+ * test_accel.c - every tree kind and builder against brute force, through
+ * the common accel interface, on real models, the project's own models and
+ * a random soup: 100k random rays (closest hit and any hit) and PROTOCOL.md's
+ * primary rays. The brute-force answers are computed once per model and
+ * shared by all eight trees.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/accel.h"
+#include "arbor/brute.h"
+#include "arbor/load.h"
+#include "support.h"
+#include "unity.h"
+
+#define RANDOM_RAYS 100000
+
+void setUp(void) {}
+void tearDown(void) {}
+
+/* Brute-force answers for one ray set. */
+typedef struct {
+    arbor_ray *rays;
+    size_t n;
+    arbor_hit *hit;
+    bool *found;
+} truth_set;
+
+static void truth_compute(truth_set *ts, const arbor_mesh *m, arbor_ray *rays, size_t n)
+{
+    ts->rays = rays;
+    ts->n = n;
+    ts->hit = malloc(n * sizeof *ts->hit);
+    ts->found = malloc(n * sizeof *ts->found);
+    arbor_brute_intersect_many(m, rays, n, ts->hit, ts->found, 0);
+}
+
+static void truth_free(truth_set *ts)
+{
+    free(ts->rays);
+    free(ts->hit);
+    free(ts->found);
+}
+
+/* The hit names a triangle that really is hit at that t. */
+static bool hit_is_real(const arbor_mesh *m, const arbor_ray *r, const arbor_hit *h)
+{
+    if (h->tri >= m->ntris)
+        return false;
+    arbor_ray_prep p;
+    arbor_ray_prepare(r, &p);
+    arbor_vec3 a, b, c;
+    arbor_mesh_tri(m, h->tri, &a, &b, &c);
+    float t, u, v;
+    return arbor_triangle_intersect(r, &p, a, b, c, INFINITY, &t, &u, &v) && t == h->t;
+}
+
+/* Closest hits of tree on the set agree with brute force; returns mismatches
+ * and describes the first in msg. */
+static size_t check_closest(const arbor_accel *tree, const arbor_mesh *m, const truth_set *ts, char *msg,
+                            size_t msglen)
+{
+    size_t bad = 0;
+    for (size_t i = 0; i < ts->n; i++) {
+        arbor_ray r = ts->rays[i];
+        arbor_hit h;
+        bool found = arbor_accel_intersect(tree, &r, &h);
+        bool ok = found == ts->found[i];
+        if (ok && found)
+            ok = test_close(h.t, ts->hit[i].t, 1e-5f) && r.tmax == h.t && hit_is_real(m, &ts->rays[i], &h);
+        if (!ok && bad++ == 0)
+            snprintf(msg, msglen, "ray %zu: tree %s t=%g tri=%u, brute %s t=%g tri=%u", i, found ? "hit" : "miss",
+                     found ? (double)h.t : 0.0, found ? h.tri : 0, ts->found[i] ? "hit" : "miss",
+                     (double)ts->hit[i].t, ts->hit[i].tri);
+    }
+    return bad;
+}
+
+/* Any-hit answers follow from the closest hit: with tmax at half the closest
+ * distance nothing is hit, with tmax at twice it something is. */
+static size_t check_occluded(const arbor_accel *tree, const truth_set *ts, char *msg, size_t msglen)
+{
+    size_t bad = 0;
+    for (size_t i = 0; i < ts->n; i++) {
+        arbor_ray r = ts->rays[i];
+        bool expect;
+        if (!ts->found[i]) {
+            expect = false;
+        } else if (i & 1) {
+            r.tmax = 0.5f * ts->hit[i].t;
+            expect = false;
+        } else {
+            r.tmax = 2.0f * ts->hit[i].t;
+            expect = true;
+        }
+        if (arbor_accel_occluded(tree, &r) != expect && bad++ == 0)
+            snprintf(msg, msglen, "ray %zu: occluded should be %s (tmax %g)", i, expect ? "true" : "false",
+                     (double)r.tmax);
+    }
+    return bad;
+}
+
+/* Builds every kind x builder over m and checks each against the truth sets. */
+static void check_all_trees(const char *name, const arbor_mesh *m, const truth_set *random_set,
+                            const truth_set *protocol_set)
+{
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
+        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
+            char what[128], msg[512] = "";
+            snprintf(what, sizeof what, "%s %s %s", name, arbor_accel_kind_name((arbor_accel_kind)k),
+                     arbor_builder_name((arbor_builder)b));
+            arbor_build_opts o;
+            arbor_build_opts_init(&o, (arbor_accel_kind)k, (arbor_builder)b);
+            arbor_err e;
+            arbor_accel *tree = arbor_accel_build(m, &o, &e);
+            if (tree == NULL) {
+                char f[768];
+                snprintf(f, sizeof f, "%s: build failed: %s", what, e.msg);
+                TEST_FAIL_MESSAGE(f);
+            }
+            if (!arbor_accel_validate(tree, &e)) {
+                char f[768];
+                snprintf(f, sizeof f, "%s: invalid tree: %s", what, e.msg);
+                TEST_FAIL_MESSAGE(f);
+            }
+            size_t bad_r = check_closest(tree, m, random_set, msg, sizeof msg);
+            size_t bad_o = bad_r ? 0 : check_occluded(tree, random_set, msg, sizeof msg);
+            size_t bad_p = bad_r || bad_o ? 0 : check_closest(tree, m, protocol_set, msg, sizeof msg);
+            arbor_accel_free(tree);
+            if (bad_r || bad_o || bad_p) {
+                char f[1024];
+                snprintf(f, sizeof f, "%s: %zu random closest, %zu random any-hit, %zu protocol mismatches; first: %s",
+                         what, bad_r, bad_o, bad_p, msg);
+                TEST_FAIL_MESSAGE(f);
+            }
+        }
+    }
+}
+
+/* stride: PROTOCOL.md's primary rays are all checked on small models, every
+ * stride-th pixel in x and y on large ones (brute force is O(triangles)). */
+static void check_mesh(const char *name, const arbor_mesh *m, int stride)
+{
+    truth_set random_set, protocol_set;
+    truth_compute(&random_set, m, test_random_rays(m, RANDOM_RAYS, 7), RANDOM_RAYS);
+    size_t np;
+    arbor_ray *prays = test_protocol_rays(m, stride, &np);
+    truth_compute(&protocol_set, m, prays, np);
+    size_t hits = 0;
+    for (size_t i = 0; i < random_set.n; i++)
+        hits += random_set.found[i];
+    /* a ray set that misses everything would prove nothing */
+    TEST_ASSERT_TRUE_MESSAGE(hits > RANDOM_RAYS / 10, "too few random rays hit the model");
+    check_all_trees(name, m, &random_set, &protocol_set);
+    truth_free(&random_set);
+    truth_free(&protocol_set);
+}
+
+static void check_file(const char *path, int stride)
+{
+    arbor_mesh m;
+    arbor_err e;
+    if (!arbor_load_model(path, &m, &e)) {
+        char f[768];
+        snprintf(f, sizeof f, "loading %s: %s", path, e.msg);
+        TEST_FAIL_MESSAGE(f);
+    }
+    check_mesh(path, &m, stride);
+    arbor_mesh_free(&m);
+}
+
+static void test_galleon(void) { check_file(test_shared_model("galleon.obj"), 2); }
+static void test_castle(void) { check_file(test_shared_model("castle.obj"), 4); }
+static void test_bunny(void) { check_file(test_shared_model("bunny.obj"), 8); }
+
+static void test_random_soup_10k(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 10000, 42);
+    check_mesh("soup", &m, 4);
+    arbor_mesh_free(&m);
+}
+
+int main(void)
+{
+    UNITY_BEGIN();
+    RUN_TEST(test_random_soup_10k);
+    RUN_TEST(test_galleon);
+    RUN_TEST(test_castle);
+    RUN_TEST(test_bunny);
+    return UNITY_END();
+}
