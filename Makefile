@@ -74,8 +74,14 @@ unit: $(TEST_BIN)
 test: $(BUILD)/arbord $(TEST_BIN)
 	@ARBOR_SHARED_MODELS=$(SHARED)/models tests/run.sh $(TEST_BIN)
 
+# Until the daemon exists, the main job renders every model in models/ (shaded, 4 samples per pixel).
 run: $(BUILD)/arbord
-	$(BUILD)/arbord render --model models/cornell.obj --mode shaded --spp 4 -o $(BUILD)/cornell.png
+	@mkdir -p $(BUILD)/run
+	@for m in models/*.obj; do \
+	    out=$(BUILD)/run/$$(basename $$m .obj).png; \
+	    echo "== $$m -> $$out"; \
+	    $(BUILD)/arbord render --model $$m --mode shaded --spp 4 -o $$out || exit 1; \
+	done
 
 models: $(BUILD)/arbord
 	$(BUILD)/arbord gen --all $(if $(SIZE),--size $(SIZE)) --dir models
