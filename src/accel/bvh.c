@@ -1,13 +1,161 @@
-/* bvh.c - placeholder until the bvh builders land. */
-#include "accel_impl.h"
+/*
+ * bvh.c - the bounding volume hierarchy as a tree kind: its arbor_accel_ops
+ * table and its validator. The layout is described in bvh_internal.h, the
+ * builders in bvh_build.c and the traversal in bvh_traverse.c.
+ *
+ * The validator walks the tree on its own, sharing nothing with the
+ * builders but the node layout, and recounts every statistic from the walk,
+ * so a builder that miscounts or misplaces anything is caught.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
 
-static void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats *s, arbor_err *e)
+#include "bvh_internal.h"
+
+/* What the validating walk has seen so far. */
+typedef struct {
+    const bvh_tree *t;
+    const arbor_mesh *m;
+    arbor_err *e;
+    uint8_t *seen;         /* per mesh triangle: found in a leaf */
+    double root_area;
+    uint32_t next_node;    /* depth-first order: the node the walk must meet next */
+    uint32_t next_tri;     /* leaves cover leaf order [0, ntris) one after another */
+    uint64_t inner, leaves, refs, leaf_depth_sum;
+    uint32_t max_depth;
+    double sah_cost;
+} bvh_check;
+
+static bool check_leaf(bvh_check *k, uint32_t i, const bvh_node *n, const arbor_aabb *box)
 {
-    (void)m;
-    (void)o;
-    (void)s;
-    arbor_fail(e, ARBOR_ERR_INVALID, "bvh trees are not written yet");
-    return (void *)0;
+    const bvh_tree *t = k->t;
+    if (n->index != k->next_tri || n->count > t->ntris - n->index)
+        return arbor_fail(k->e, ARBOR_ERR_INVALID,
+                          "bvh node %u: leaf triangles [%u, +%u) do not follow the previous leaf's (next is %u of %u)", i,
+                          n->index, n->count, k->next_tri, t->ntris);
+    k->next_tri += n->count;
+    for (uint32_t j = n->index; j < n->index + n->count; j++) {
+        uint32_t tri = t->tri_index[j];
+        if (tri >= k->m->ntris)
+            return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: triangle index %u out of range (%u triangles)", i,
+                              tri, k->m->ntris);
+        if (k->seen[tri])
+            return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: triangle %u is in a second leaf", i, tri);
+        k->seen[tri] = 1;
+        arbor_vec3 v[3];
+        arbor_mesh_tri(k->m, tri, &v[0], &v[1], &v[2]);
+        if (memcmp(v, &t->tri_verts[3 * (size_t)j], sizeof v) != 0)
+            return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: the copied vertices of triangle %u differ from the mesh's",
+                              i, tri);
+        if (!aabb_contains(*box, arbor_mesh_tri_bounds(k->m, tri)))
+            return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: leaf box does not contain triangle %u", i, tri);
+    }
+    return true;
 }
 
-const arbor_accel_ops arbor_bvh_ops = {bvh_build, 0, 0, 0, 0, 0};
+/* Checks node i at `depth` (inside `parent`, NULL for the root) and its subtree. */
+static bool check_node(bvh_check *k, uint32_t i, const arbor_aabb *parent, uint32_t depth)
+{
+    const bvh_tree *t = k->t;
+    if (i != k->next_node || i >= t->nnodes)
+        return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: expected node %u of %u here in depth-first order", i,
+                          k->next_node, t->nnodes);
+    if (depth >= BVH_MAX_DEPTH)
+        return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: depth %u exceeds the traversal stack", i, depth);
+    k->next_node++;
+    const bvh_node *n = &t->nodes[i];
+    arbor_aabb box = bvh_node_box(n);
+    if (parent != NULL && !aabb_contains(*parent, box))
+        return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: box not inside its parent's", i);
+    double ratio = bvh_area_ratio(aabb_area(box), k->root_area);
+    if (n->count > 0) {
+        k->leaves++;
+        k->refs += n->count;
+        k->leaf_depth_sum += depth;
+        k->max_depth = depth > k->max_depth ? depth : k->max_depth;
+        k->sah_cost += ratio * n->count;
+        return check_leaf(k, i, n, &box);
+    }
+    k->inner++;
+    k->sah_cost += ratio;
+    if (!check_node(k, i + 1, &box, depth + 1))
+        return false;
+    if (n->index != k->next_node)
+        return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: right child is %u, not %u right after the left subtree", i,
+                          n->index, k->next_node);
+    return check_node(k, n->index, &box, depth + 1);
+}
+
+static bool close_rel(double a, double b, double rel)
+{
+    return fabs(a - b) <= rel * fmax(fabs(a), fabs(b));
+}
+
+/* The statistics the walk counted against the ones the build reported. */
+static bool check_stats(const bvh_check *k, const arbor_tree_stats *s, arbor_err *e)
+{
+    const bvh_tree *t = k->t;
+    uint64_t nodes = k->inner + k->leaves;
+    double mean_depth = k->leaves ? (double)k->leaf_depth_sum / (double)k->leaves : 0.0;
+    double mean_tris = k->leaves ? (double)k->refs / (double)k->leaves : 0.0;
+    uint64_t bytes = (uint64_t)t->nnodes * sizeof(bvh_node) + (uint64_t)t->ntris * (3 * sizeof(arbor_vec3) + 4);
+    if (s->nodes != nodes || s->leaves != k->leaves || s->empty_leaves != 0 || s->refs != k->refs)
+        return arbor_fail(e, ARBOR_ERR_INVALID,
+                          "bvh stats: nodes/leaves/empty/refs %llu/%llu/%llu/%llu, the walk counts %llu/%llu/0/%llu",
+                          (unsigned long long)s->nodes, (unsigned long long)s->leaves,
+                          (unsigned long long)s->empty_leaves, (unsigned long long)s->refs, (unsigned long long)nodes,
+                          (unsigned long long)k->leaves, (unsigned long long)k->refs);
+    if (s->max_depth != k->max_depth || !close_rel(s->mean_leaf_depth, mean_depth, 1e-9) ||
+        !close_rel(s->mean_tris_per_leaf, mean_tris, 1e-9))
+        return arbor_fail(e, ARBOR_ERR_INVALID,
+                          "bvh stats: max depth %u, mean leaf depth %g, tris per leaf %g; the walk finds %u, %g, %g",
+                          s->max_depth, s->mean_leaf_depth, s->mean_tris_per_leaf, k->max_depth, mean_depth, mean_tris);
+    if (s->bytes != bytes)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "bvh stats: %llu bytes, the arrays hold %llu",
+                          (unsigned long long)s->bytes, (unsigned long long)bytes);
+    if (!close_rel(s->sah_cost, k->sah_cost, 1e-6))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "bvh stats: sah_cost %.9g, the walk finds %.9g", s->sah_cost,
+                          k->sah_cost);
+    return true;
+}
+
+static bool bvh_validate(const void *impl, const arbor_mesh *m, const arbor_tree_stats *s, arbor_err *e)
+{
+    const bvh_tree *t = impl;
+    if (t->ntris != m->ntris)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "bvh: built over %u triangles, the mesh has %u", t->ntris, m->ntris);
+    if ((t->nnodes == 0) != (t->ntris == 0))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "bvh: %u nodes for %u triangles", t->nnodes, t->ntris);
+    bvh_check k;
+    memset(&k, 0, sizeof k);
+    k.t = t;
+    k.m = m;
+    k.e = e;
+    if (t->nnodes > 0) {
+        k.seen = calloc(t->ntris, 1);
+        if (k.seen == NULL)
+            return arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory validating");
+        k.root_area = aabb_area(bvh_node_box(&t->nodes[0]));
+        bool ok = check_node(&k, 0, NULL, 0);
+        free(k.seen);
+        if (!ok)
+            return false;
+        if (k.next_node != t->nnodes)
+            return arbor_fail(e, ARBOR_ERR_INVALID, "bvh: the walk reaches %u of %u nodes", k.next_node, t->nnodes);
+        /* each leaf triangle was new, and leaves cover all ntris slots: so every
+         * mesh triangle is in exactly one leaf */
+        if (k.next_tri != t->ntris)
+            return arbor_fail(e, ARBOR_ERR_INVALID, "bvh: leaves hold %u of %u triangles", k.next_tri, t->ntris);
+    }
+    return check_stats(&k, s, e);
+}
+
+static void bvh_destroy(void *impl)
+{
+    bvh_tree_free(impl);
+}
+
+const arbor_accel_ops arbor_bvh_ops = {
+    bvh_build, bvh_intersect, bvh_intersect_counted, bvh_occluded, bvh_validate, bvh_destroy,
+};

@@ -1,0 +1,514 @@
+/*
+ * bvh_build.c - the BVH builders: spatial median, object median, object mean
+ * and binned SAH, one top-down recursion that differs only in where it
+ * splits a node (choose_split).
+ *
+ * The build works on an array idx of triangle indices that it partitions in
+ * place, so a node always owns a contiguous range idx[begin, end). Each
+ * triangle's box and centroid (the centre of its box) are computed once up
+ * front. The node array is allocated once for the worst case, 2N - 1 nodes
+ * (every leaf holding one triangle), and nodes are written straight into
+ * their depth-first slots, so no allocation happens per node.
+ *
+ * Splits (all on the centroids, so every triangle goes to exactly one side):
+ *   spatial  the middle of the node's centroid bounds on their longest axis;
+ *   median   the median centroid on that axis, found by quickselect;
+ *   mean     the mean centroid on that axis;
+ *   sah      binned SAH (Wald, "On fast Construction of SAH-based Bounding
+ *            Volume Hierarchies", 2007): centroids fall into BVH_SAH_BINS
+ *            bins per axis, the cost of each of the bins - 1 planes per axis
+ *            is evaluated from prefix and suffix sums of the bins, and the
+ *            cheapest plane wins; the node stays a leaf when that costs more
+ *            than intersecting its triangles (and it is small enough).
+ * When a split would leave one side empty (rounding, or everything on one
+ * side of the plane) the node splits at the object median instead, which
+ * always gives two non-empty halves; when all centroids coincide the range is
+ * halved by count. The same median split takes over near BVH_MAX_DEPTH so
+ * that no tree is deeper than the traversal stack.
+ *
+ * Parallel build: the top levels of the recursion run their two children on
+ * two threads (arbor_fork_join). The left child is built into slot s + 1 as
+ * always; the right child cannot know how many nodes the left will use, so
+ * it is built into the slot its worst case would leave free, s + 2 n_left,
+ * and moved down next to the left subtree after both finish.
+ */
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/sys.h"
+#include "bvh_internal.h"
+
+/* Defaults (arbor_build_opts fields that are 0). The simple builders split
+ * down to BVH_SIMPLE_LEAF triangles; the SAH builder decides by cost but
+ * never leaves more than BVH_SAH_LEAF in a leaf. Unit costs for traversal
+ * and intersection are what the sah_cost statistic uses too. */
+#define BVH_SIMPLE_LEAF 4
+#define BVH_SAH_LEAF 8
+#define BVH_SAH_BINS 32
+#define BVH_COST_TRAVERSE 1.0f
+#define BVH_COST_INTERSECT 1.0f
+/* A node forks onto a second thread only if it has this many triangles, and
+ * only in the top levels: enough levels that uneven splits still keep every
+ * core busy (a few threads per core), no more. */
+#define BVH_FORK_MIN_TRIS 8192
+#define BVH_FORK_EXTRA_LEVELS 2
+
+typedef struct {
+    arbor_builder builder;
+    uint32_t max_leaf;       /* a node with more triangles is always split */
+    uint32_t max_depth;      /* a node at this depth is always a leaf */
+    uint32_t fork_depth;     /* nodes above this depth may fork */
+    float cost_traverse, cost_intersect;
+    const arbor_aabb *tri_box;  /* per mesh triangle */
+    const float *centroid;      /* per mesh triangle: x, y, z of its box centre */
+    uint32_t *idx;              /* triangle indices; each task owns a range */
+    bvh_node *nodes;            /* each task owns a range of slots */
+} bvh_builder;
+
+/* What a subtree's build adds to the statistics; parallel tasks each keep
+ * their own and the parent adds them up after the join. */
+typedef struct {
+    uint64_t inner, leaves, refs, leaf_depth_sum;
+    uint32_t max_depth;
+    double inner_area, leaf_area;  /* sum of A(n) over inner nodes; of A(l) N(l) over leaves */
+} bvh_tally;
+
+static inline float min_f(float a, float b) { return a < b ? a : b; }
+static inline float max_f(float a, float b) { return a > b ? a : b; }
+
+static inline void box_add(arbor_aabb *b, const arbor_aabb *t)
+{
+    b->lo = vec3(min_f(b->lo.x, t->lo.x), min_f(b->lo.y, t->lo.y), min_f(b->lo.z, t->lo.z));
+    b->hi = vec3(max_f(b->hi.x, t->hi.x), max_f(b->hi.y, t->hi.y), max_f(b->hi.z, t->hi.z));
+}
+
+static inline void box_add_point(arbor_aabb *b, const float *p)
+{
+    b->lo = vec3(min_f(b->lo.x, p[0]), min_f(b->lo.y, p[1]), min_f(b->lo.z, p[2]));
+    b->hi = vec3(max_f(b->hi.x, p[0]), max_f(b->hi.y, p[1]), max_f(b->hi.z, p[2]));
+}
+
+static uint32_t ceil_log2(uint32_t n)
+{
+    uint32_t k = 0;
+    while (k < 32 && ((uint64_t)1 << k) < n)
+        k++;
+    return k;
+}
+
+static inline float centroid_axis(const bvh_builder *B, uint32_t tri, int axis)
+{
+    return B->centroid[3 * (size_t)tri + (size_t)axis];
+}
+
+/* The box of the triangles in idx[b, e) and the box of their centroids. */
+static void range_bounds(const bvh_builder *B, uint32_t b, uint32_t e, arbor_aabb *box, arbor_aabb *cbox)
+{
+    *box = aabb_empty();
+    *cbox = aabb_empty();
+    for (uint32_t i = b; i < e; i++) {
+        uint32_t t = B->idx[i];
+        box_add(box, &B->tri_box[t]);
+        box_add_point(cbox, &B->centroid[3 * (size_t)t]);
+    }
+}
+
+/* Moves the triangles of idx[b, e) whose centroid lies below pos on axis to
+ * the front and returns where the others start. The one partition of every
+ * builder (and of the quickselect below). */
+static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, int axis, float pos)
+{
+    uint32_t *idx = B->idx;
+    uint32_t i = b, j = e;
+    /* invariant: idx[b, i) below pos, idx[j, e) not below pos */
+    while (i < j) {
+        if (centroid_axis(B, idx[i], axis) < pos) {
+            i++;
+        } else {
+            uint32_t tmp = idx[i];
+            idx[i] = idx[--j];
+            idx[j] = tmp;
+        }
+    }
+    return i;
+}
+
+static float median_of_three(float a, float b, float c)
+{
+    return max_f(min_f(a, b), min_f(max_f(a, b), c));
+}
+
+/* Quickselect (Hoare's FIND): reorders idx[b, e) so that the triangle with
+ * the k-th smallest centroid on axis is at k, none larger before it and none
+ * smaller after it. Expected O(e - b). Each round splits the range three
+ * ways (below, equal to, above the pivot), so equal centroids cannot stall it. */
+static void select_nth(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t k, int axis)
+{
+    while (e - b > 1) {
+        float pivot = median_of_three(centroid_axis(B, B->idx[b], axis), centroid_axis(B, B->idx[b + (e - b) / 2], axis),
+                                      centroid_axis(B, B->idx[e - 1], axis));
+        uint32_t lt = partition(B, b, e, axis, pivot);
+        uint32_t le = partition(B, lt, e, axis, nextafterf(pivot, INFINITY));
+        if (k < lt)
+            e = lt;
+        else if (k >= le)
+            b = le;
+        else
+            return;
+        if (lt == le)
+            return; /* the pivot was NaN (a NaN vertex): no order to find */
+    }
+}
+
+/* The object median split on axis: both halves non-empty for e - b >= 2. */
+static uint32_t split_median(const bvh_builder *B, uint32_t b, uint32_t e, int axis)
+{
+    uint32_t m = b + (e - b) / 2;
+    select_nth(B, b, e, m, axis);
+    return m;
+}
+
+static float centroid_mean(const bvh_builder *B, uint32_t b, uint32_t e, int axis)
+{
+    double sum = 0.0;
+    for (uint32_t i = b; i < e; i++)
+        sum += centroid_axis(B, B->idx[i], axis);
+    return (float)(sum / (double)(e - b));
+}
+
+typedef struct {
+    arbor_aabb box;
+    uint32_t count;
+} sah_bin;
+
+static inline uint32_t sah_bin_index(float c, float lo, float scale)
+{
+    float f = (c - lo) * scale;
+    if (!(f > 0.0f))
+        return 0;
+    return f < (float)(BVH_SAH_BINS - 1) ? (uint32_t)f : BVH_SAH_BINS - 1;
+}
+
+/* Binned SAH over the three axes of idx[b, e), whose box has area `area` and
+ * whose centroids span cbox (not a single point). Sets *axis and *pos to the
+ * cheapest plane and returns whether splitting there beats a leaf, by the
+ * cost model Ct A(n) + Ci (A(l) N(l) + A(r) N(r)) against Ci A(n) N(n)
+ * (the usual one multiplied through by A(n), so flat nodes need no division).
+ * *axis and *pos stay as they came if no plane has triangles on both sides. */
+static bool sah_choose(const bvh_builder *B, uint32_t b, uint32_t e, float area, const arbor_aabb *cbox, int *axis,
+                       float *pos)
+{
+    sah_bin bins[3][BVH_SAH_BINS];
+    float lo[3] = {cbox->lo.x, cbox->lo.y, cbox->lo.z};
+    float ext[3] = {cbox->hi.x - lo[0], cbox->hi.y - lo[1], cbox->hi.z - lo[2]};
+    float scale[3];
+    for (int k = 0; k < 3; k++) {
+        scale[k] = ext[k] > 0.0f ? (float)BVH_SAH_BINS / ext[k] : 0.0f;
+        for (int j = 0; j < BVH_SAH_BINS; j++) {
+            bins[k][j].box = aabb_empty();
+            bins[k][j].count = 0;
+        }
+    }
+    for (uint32_t i = b; i < e; i++) {
+        uint32_t t = B->idx[i];
+        const float *c = &B->centroid[3 * (size_t)t];
+        for (int k = 0; k < 3; k++) {
+            sah_bin *bin = &bins[k][sah_bin_index(c[k], lo[k], scale[k])];
+            bin->count++;
+            box_add(&bin->box, &B->tri_box[t]);
+        }
+    }
+    double best = INFINITY;
+    for (int k = 0; k < 3; k++) {
+        if (scale[k] == 0.0f)
+            continue; /* every centroid in one bin: no plane to try */
+        /* right[j]: A N of the bins after plane j (plane j lies after bin j) */
+        double right[BVH_SAH_BINS - 1];
+        uint32_t right_count[BVH_SAH_BINS - 1];
+        arbor_aabb acc = aabb_empty();
+        uint32_t n = 0;
+        for (int j = BVH_SAH_BINS - 1; j > 0; j--) {
+            box_add(&acc, &bins[k][j].box);
+            n += bins[k][j].count;
+            right[j - 1] = (double)aabb_area(acc) * n;
+            right_count[j - 1] = n;
+        }
+        acc = aabb_empty();
+        n = 0;
+        for (int j = 0; j < BVH_SAH_BINS - 1; j++) {
+            box_add(&acc, &bins[k][j].box);
+            n += bins[k][j].count;
+            if (n == 0 || right_count[j] == 0)
+                continue;
+            double cost = (double)aabb_area(acc) * n + right[j];
+            if (cost < best) {
+                best = cost;
+                *axis = k;
+                *pos = lo[k] + (float)(j + 1) / scale[k];
+            }
+        }
+    }
+    double split_cost = (double)B->cost_traverse * area + (double)B->cost_intersect * best;
+    double leaf_cost = (double)B->cost_intersect * area * (double)(e - b);
+    return split_cost < leaf_cost || e - b > B->max_leaf;
+}
+
+/* Where the node over idx[b, e) at depth `depth` splits: the index in (b, e)
+ * where its right child's triangles start, or 0 (never such an index) for a
+ * leaf. Reorders idx[b, e) to match. */
+static uint32_t choose_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, const arbor_aabb *box,
+                             const arbor_aabb *cbox)
+{
+    uint32_t n = e - b;
+    arbor_vec3 ext = aabb_extent(*cbox);
+    if (ext.x <= 0.0f && ext.y <= 0.0f && ext.z <= 0.0f)
+        return n > B->max_leaf ? b + n / 2 : 0; /* one centroid: any halving is as good */
+    int axis = vec3_max_axis(ext);
+    float pos = 0.5f * (vec3_axis(cbox->lo, axis) + vec3_axis(cbox->hi, axis));
+    /* Past this depth only median splits are sure to end by BVH_MAX_DEPTH - 1:
+     * each halves the count, so n triangles need ceil(log2 n) more levels. */
+    if (depth + 1 + ceil_log2(n) > BVH_MAX_DEPTH - 1)
+        return split_median(B, b, e, axis);
+    uint32_t m;
+    switch (B->builder) {
+    case ARBOR_BUILD_SAH:
+        if (!sah_choose(B, b, e, aabb_area(*box), cbox, &axis, &pos))
+            return 0;
+        m = partition(B, b, e, axis, pos);
+        break;
+    case ARBOR_BUILD_SPATIAL:
+        if (n <= B->max_leaf)
+            return 0;
+        m = partition(B, b, e, axis, pos);
+        break;
+    case ARBOR_BUILD_MEAN:
+        if (n <= B->max_leaf)
+            return 0;
+        m = partition(B, b, e, axis, centroid_mean(B, b, e, axis));
+        break;
+    case ARBOR_BUILD_MEDIAN:
+    default:
+        if (n <= B->max_leaf)
+            return 0;
+        return split_median(B, b, e, axis);
+    }
+    /* a plane with every centroid on one side (rounding at a bin edge or a
+     * mean that rounds to the smallest value): fall back to the median */
+    if (m == b || m == e)
+        m = split_median(B, b, e, axis);
+    return m;
+}
+
+static uint32_t build_subtree(const bvh_builder *B, uint32_t s, uint32_t b, uint32_t e, uint32_t depth,
+                              bvh_tally *tally);
+
+typedef struct {
+    const bvh_builder *B;
+    uint32_t slot, begin, end, depth;
+    bvh_tally tally;
+    uint32_t used;
+} build_task;
+
+static void build_task_run(void *arg)
+{
+    build_task *t = arg;
+    t->used = build_subtree(t->B, t->slot, t->begin, t->end, t->depth, &t->tally);
+}
+
+static void tally_add(bvh_tally *to, const bvh_tally *from)
+{
+    to->inner += from->inner;
+    to->leaves += from->leaves;
+    to->refs += from->refs;
+    to->leaf_depth_sum += from->leaf_depth_sum;
+    to->max_depth = to->max_depth > from->max_depth ? to->max_depth : from->max_depth;
+    to->inner_area += from->inner_area;
+    to->leaf_area += from->leaf_area;
+}
+
+/* Moves the subtree of `count` nodes at slot `from` down to slot `to`; the
+ * right-child indices inside it move with it. */
+static void move_subtree(bvh_node *nodes, uint32_t from, uint32_t to, uint32_t count)
+{
+    memmove(nodes + to, nodes + from, count * sizeof *nodes);
+    for (uint32_t i = to; i < to + count; i++)
+        if (nodes[i].count == 0)
+            nodes[i].index -= from - to;
+}
+
+/* Builds the children of inner node s over idx[b, m) and idx[m, e) on two
+ * threads; returns the nodes they used. */
+static uint32_t build_children_parallel(const bvh_builder *B, uint32_t s, uint32_t b, uint32_t m, uint32_t e,
+                                        uint32_t depth, bvh_tally *tally)
+{
+    build_task left = {B, s + 1, b, m, depth + 1, {0}, 0};
+    /* the left subtree uses at most 2 (m - b) - 1 slots */
+    build_task right = {B, s + 2 * (m - b), m, e, depth + 1, {0}, 0};
+    arbor_fork_join(build_task_run, &left, build_task_run, &right, true);
+    uint32_t right_slot = s + 1 + left.used;
+    if (right_slot != right.slot)
+        move_subtree(B->nodes, right.slot, right_slot, right.used);
+    B->nodes[s].index = right_slot;
+    tally_add(tally, &left.tally);
+    tally_add(tally, &right.tally);
+    return left.used + right.used;
+}
+
+/* Builds the subtree over idx[b, e) with its root in slot s at `depth`, in
+ * depth-first order from s; returns the number of nodes it used (at most
+ * 2 (e - b) - 1). */
+static uint32_t build_subtree(const bvh_builder *B, uint32_t s, uint32_t b, uint32_t e, uint32_t depth,
+                              bvh_tally *tally)
+{
+    arbor_aabb box, cbox;
+    range_bounds(B, b, e, &box, &cbox);
+    bvh_node *node = &B->nodes[s];
+    node->bounds[0] = box.lo.x;
+    node->bounds[1] = box.lo.y;
+    node->bounds[2] = box.lo.z;
+    node->bounds[3] = box.hi.x;
+    node->bounds[4] = box.hi.y;
+    node->bounds[5] = box.hi.z;
+    double area = aabb_area(box);
+    uint32_t m = e - b > 1 && depth < B->max_depth ? choose_split(B, b, e, depth, &box, &cbox) : 0;
+    if (m == 0) {
+        node->index = b;
+        node->count = e - b;
+        tally->leaves++;
+        tally->refs += e - b;
+        tally->leaf_depth_sum += depth;
+        tally->max_depth = depth > tally->max_depth ? depth : tally->max_depth;
+        tally->leaf_area += area * (double)(e - b);
+        return 1;
+    }
+    node->count = 0;
+    tally->inner++;
+    tally->inner_area += area;
+    if (depth < B->fork_depth && e - b >= BVH_FORK_MIN_TRIS)
+        return 1 + build_children_parallel(B, s, b, m, e, depth, tally);
+    uint32_t left = build_subtree(B, s + 1, b, m, depth + 1, tally);
+    node->index = s + 1 + left;
+    return 1 + left + build_subtree(B, s + 1 + left, m, e, depth + 1, tally);
+}
+
+static void tally_to_stats(const bvh_tally *t, const bvh_tree *tree, double root_area, arbor_tree_stats *s)
+{
+    memset(s, 0, sizeof *s);
+    s->nodes = t->inner + t->leaves;
+    s->leaves = t->leaves;
+    s->empty_leaves = 0;
+    s->max_depth = t->max_depth;
+    s->refs = t->refs;
+    if (t->leaves > 0) {
+        s->mean_leaf_depth = (double)t->leaf_depth_sum / (double)t->leaves;
+        s->mean_tris_per_leaf = (double)t->refs / (double)t->leaves;
+    }
+    s->bytes = (uint64_t)tree->nnodes * sizeof(bvh_node) +
+               (uint64_t)tree->ntris * (3 * sizeof(arbor_vec3) + sizeof(uint32_t));
+    s->sah_cost = root_area > 0.0 ? (t->inner_area + t->leaf_area) / root_area : (double)(t->inner + t->refs);
+}
+
+void bvh_tree_free(bvh_tree *t)
+{
+    if (t == NULL)
+        return;
+    free(t->nodes);
+    free(t->tri_verts);
+    free(t->tri_index);
+    free(t);
+}
+
+/* Each triangle's box and centroid, once for the whole build. */
+static void precompute_triangles(const arbor_mesh *m, arbor_aabb *tri_box, float *centroid, uint32_t *idx)
+{
+    for (uint32_t t = 0; t < m->ntris; t++) {
+        arbor_vec3 a, b, c;
+        arbor_mesh_tri(m, t, &a, &b, &c);
+        arbor_aabb box = {a, a};
+        box_add_point(&box, &b.x);
+        box_add_point(&box, &c.x);
+        tri_box[t] = box;
+        centroid[3 * (size_t)t + 0] = 0.5f * (box.lo.x + box.hi.x);
+        centroid[3 * (size_t)t + 1] = 0.5f * (box.lo.y + box.hi.y);
+        centroid[3 * (size_t)t + 2] = 0.5f * (box.lo.z + box.hi.z);
+        idx[t] = t;
+    }
+}
+
+static void builder_init(bvh_builder *B, const arbor_build_opts *o)
+{
+    memset(B, 0, sizeof *B);
+    B->builder = o->builder;
+    B->max_leaf = o->max_leaf_tris > 0 ? (uint32_t)o->max_leaf_tris
+                  : o->builder == ARBOR_BUILD_SAH ? BVH_SAH_LEAF : BVH_SIMPLE_LEAF;
+    B->max_depth = o->max_depth > 0 && o->max_depth < BVH_MAX_DEPTH ? (uint32_t)o->max_depth : BVH_MAX_DEPTH - 1;
+    int threads = o->threads > 0 ? o->threads : arbor_cpu_count();
+    B->fork_depth = threads > 1 ? ceil_log2((uint32_t)threads) + BVH_FORK_EXTRA_LEVELS : 0;
+    B->cost_traverse = o->cost_traverse > 0.0f ? o->cost_traverse : BVH_COST_TRAVERSE;
+    B->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : BVH_COST_INTERSECT;
+}
+
+/* Copies the finished nodes into an array of exactly their size, aligned so
+ * that no 32-byte node straddles two cache lines. */
+static bvh_node *nodes_shrink(const bvh_node *nodes, uint32_t used)
+{
+    size_t bytes = ((size_t)used * sizeof(bvh_node) + 63) & ~(size_t)63;
+    bvh_node *out = aligned_alloc(64, bytes);
+    if (out != NULL)
+        memcpy(out, nodes, (size_t)used * sizeof(bvh_node));
+    return out;
+}
+
+void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats *stats, arbor_err *e)
+{
+    uint32_t n = m->ntris;
+    if (n > UINT32_MAX / 2) {
+        arbor_fail(e, ARBOR_ERR_INVALID, "bvh: %u triangles is more than node indices can address", n);
+        return NULL;
+    }
+    bvh_tree *tree = calloc(1, sizeof *tree);
+    if (tree == NULL) {
+        arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory");
+        return NULL;
+    }
+    tree->ntris = n;
+    if (n == 0) {
+        bvh_tally none = {0};
+        tally_to_stats(&none, tree, 0.0, stats);
+        return tree;
+    }
+    bvh_builder B;
+    builder_init(&B, o);
+    arbor_aabb *tri_box = malloc(n * sizeof *tri_box);
+    float *centroid = malloc(3 * (size_t)n * sizeof *centroid);
+    bvh_node *scratch = aligned_alloc(64, ((2 * (size_t)n - 1) * sizeof(bvh_node) + 63) & ~(size_t)63);
+    tree->tri_index = malloc(n * sizeof *tree->tri_index);
+    tree->tri_verts = malloc(3 * (size_t)n * sizeof *tree->tri_verts);
+    if (tri_box == NULL || centroid == NULL || scratch == NULL || tree->tri_index == NULL || tree->tri_verts == NULL)
+        goto nomem;
+    precompute_triangles(m, tri_box, centroid, tree->tri_index);
+    B.tri_box = tri_box;
+    B.centroid = centroid;
+    B.idx = tree->tri_index;
+    B.nodes = scratch;
+    bvh_tally tally = {0};
+    tree->nnodes = build_subtree(&B, 0, 0, n, 0, &tally);
+    tree->nodes = nodes_shrink(scratch, tree->nnodes);
+    if (tree->nodes == NULL)
+        goto nomem;
+    for (uint32_t i = 0; i < n; i++)
+        arbor_mesh_tri(m, tree->tri_index[i], &tree->tri_verts[3 * (size_t)i], &tree->tri_verts[3 * (size_t)i + 1],
+                       &tree->tri_verts[3 * (size_t)i + 2]);
+    tally_to_stats(&tally, tree, aabb_area(bvh_node_box(&tree->nodes[0])), stats);
+    free(tri_box);
+    free(centroid);
+    free(scratch);
+    return tree;
+nomem:
+    free(tri_box);
+    free(centroid);
+    free(scratch);
+    bvh_tree_free(tree);
+    arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory building over %u triangles", n);
+    return NULL;
+}

@@ -1,0 +1,629 @@
+/*
+ * test_bvh.c - the BVH kind: every builder on random soups and hand-made
+ * degenerate meshes (none, one triangle, one shared centroid, copies of one
+ * triangle, one plane, tiny with huge, a run that drives the spatial split
+ * deep), checked by the validator and against brute force for closest hits,
+ * any hits, the counted query, and the (tmin, tmax) interval; statistics
+ * worked out by hand; the parallel build equal to the serial one; and the
+ * validator failing on corrupted trees.
+ *
+ * Brute force is the truth throughout. The heavy cross-kind agreement runs
+ * are test_accel.c's; these stay small enough to run in seconds.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/accel.h"
+#include "arbor/brute.h"
+#include "../../src/accel/bvh_internal.h"
+#include "support.h"
+#include "unity.h"
+
+void setUp(void) {}
+void tearDown(void) {}
+
+static const arbor_builder builders[] = {ARBOR_BUILD_SPATIAL, ARBOR_BUILD_MEDIAN, ARBOR_BUILD_MEAN, ARBOR_BUILD_SAH};
+#define NBUILDERS (sizeof builders / sizeof builders[0])
+
+/* Builds a bvh over m and requires it to validate. */
+static arbor_accel *build_valid(const arbor_mesh *m, arbor_build_opts *o)
+{
+    arbor_err e;
+    arbor_accel *a = arbor_accel_build(m, o, &e);
+    char msg[768];
+    snprintf(msg, sizeof msg, "%s build: %s", arbor_builder_name(o->builder), a ? "" : e.msg);
+    TEST_ASSERT_NOT_NULL_MESSAGE(a, msg);
+    if (!arbor_accel_validate(a, &e)) {
+        snprintf(msg, sizeof msg, "%s: invalid tree: %s", arbor_builder_name(o->builder), e.msg);
+        TEST_FAIL_MESSAGE(msg);
+    }
+    return a;
+}
+
+static arbor_accel *build_bvh(const arbor_mesh *m, arbor_builder b, int threads)
+{
+    arbor_build_opts o;
+    arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, b);
+    o.threads = threads;
+    return build_valid(m, &o);
+}
+
+/* Rays with brute force's answers. For every eighth ray that hits, two more
+ * probe the interval: one starting at the hit (tmin = t) and one ending
+ * there (tmax = t). Any hit in a ray's interval exists exactly when a
+ * closest one does, so `found` is the any-hit truth too. */
+typedef struct {
+    arbor_ray *rays;
+    arbor_hit *hit;
+    bool *found;
+    size_t n;
+} truth_set;
+
+static truth_set truth_make(const arbor_mesh *m, const arbor_ray *rays, size_t n)
+{
+    truth_set ts;
+    ts.rays = malloc(2 * n * sizeof *ts.rays);
+    ts.hit = malloc(2 * n * sizeof *ts.hit);
+    ts.found = malloc(2 * n * sizeof *ts.found);
+    TEST_ASSERT_TRUE(ts.rays && ts.hit && ts.found);
+    memcpy(ts.rays, rays, n * sizeof *rays);
+    arbor_brute_intersect_many(m, ts.rays, n, ts.hit, ts.found, 0);
+    ts.n = n;
+    for (size_t i = 1; i < n; i += 8) {
+        if (!ts.found[i])
+            continue;
+        ts.rays[ts.n] = rays[i];
+        ts.rays[ts.n++].tmin = ts.hit[i].t;
+        ts.rays[ts.n] = rays[i];
+        ts.rays[ts.n++].tmax = ts.hit[i].t;
+    }
+    arbor_brute_intersect_many(m, ts.rays + n, ts.n - n, ts.hit + n, ts.found + n, 0);
+    return ts;
+}
+
+static void truth_free(truth_set *ts)
+{
+    free(ts->rays);
+    free(ts->hit);
+    free(ts->found);
+}
+
+/* The tree's closest hit for ray i against brute force's: same found, same
+ * t to 1e-5 relative, tmax shrunk to it, and the reported triangle really
+ * hit there with those barycentrics. */
+static void expect_same_hit(const arbor_accel *a, const arbor_mesh *m, const truth_set *ts, size_t i, bool counted,
+                            const char *what)
+{
+    const arbor_ray *ray = &ts->rays[i];
+    arbor_ray rt = *ray;
+    arbor_hit ht;
+    arbor_trace_counts c = {0, 0};
+    bool ft = counted ? arbor_accel_intersect_counted(a, &rt, &ht, &c) : arbor_accel_intersect(a, &rt, &ht);
+    char msg[256];
+    snprintf(msg, sizeof msg, "%s ray %zu (%s): tree %s t=%g, brute %s t=%g", what, i, counted ? "counted" : "plain",
+             ft ? "hit" : "miss", ft ? (double)ht.t : 0.0, ts->found[i] ? "hit" : "miss",
+             ts->found[i] ? (double)ts->hit[i].t : 0.0);
+    TEST_ASSERT_EQUAL_MESSAGE(ts->found[i], ft, msg);
+    if (counted) {
+        TEST_ASSERT_TRUE_MESSAGE(c.nodes > 0 && (!ft || c.tris > 0), msg);
+    }
+    if (!ft) {
+        TEST_ASSERT_TRUE_MESSAGE(rt.tmax == ray->tmax, msg);
+        return;
+    }
+    TEST_ASSERT_TRUE_MESSAGE(test_close(ht.t, ts->hit[i].t, 1e-5f), msg);
+    TEST_ASSERT_TRUE_MESSAGE(rt.tmax == ht.t, msg);
+    TEST_ASSERT_TRUE_MESSAGE(ht.tri < m->ntris, msg);
+    arbor_ray_prep p;
+    arbor_ray_prepare(ray, &p);
+    arbor_vec3 va, vb, vc;
+    arbor_mesh_tri(m, ht.tri, &va, &vb, &vc);
+    float t, u, v;
+    TEST_ASSERT_TRUE_MESSAGE(arbor_triangle_intersect(ray, &p, va, vb, vc, ray->tmax, &t, &u, &v) && t == ht.t &&
+                                 u == ht.u && v == ht.v,
+                             msg);
+}
+
+/* Closest hit (every fourth ray counted) and any hit for every ray of ts. */
+static void check_rays(const arbor_accel *a, const arbor_mesh *m, const truth_set *ts, const char *what)
+{
+    for (size_t i = 0; i < ts->n; i++) {
+        expect_same_hit(a, m, ts, i, i % 4 == 0, what);
+        char msg[192];
+        snprintf(msg, sizeof msg, "%s ray %zu: occluded", what, i);
+        TEST_ASSERT_EQUAL_MESSAGE(ts->found[i], arbor_accel_occluded(a, &ts->rays[i]), msg);
+    }
+}
+
+/* Every builder over m, validated and checked on the rays. */
+static void check_builders(const arbor_mesh *m, const arbor_ray *rays, size_t n, int threads, const char *name)
+{
+    truth_set ts = truth_make(m, rays, n);
+    size_t hits = 0;
+    for (size_t i = 0; i < n; i++)
+        hits += ts.found[i];
+    /* rays that all miss would prove nothing */
+    TEST_ASSERT_TRUE_MESSAGE(hits >= n / 50, name);
+    for (size_t k = 0; k < NBUILDERS; k++) {
+        arbor_accel *a = build_bvh(m, builders[k], threads);
+        char what[128];
+        snprintf(what, sizeof what, "%s %s", name, arbor_builder_name(builders[k]));
+        check_rays(a, m, &ts, what);
+        arbor_accel_free(a);
+    }
+    truth_free(&ts);
+}
+
+/* check_builders on n of test_random_rays. */
+static void check_mesh(const arbor_mesh *m, size_t n, const char *name)
+{
+    arbor_ray *rays = test_random_rays(m, n, 99);
+    check_builders(m, rays, n, 1, name);
+    free(rays);
+}
+
+static void add_tri(arbor_mesh *m, arbor_vec3 a, arbor_vec3 b, arbor_vec3 c)
+{
+    uint32_t v = m->nverts;
+    TEST_ASSERT_TRUE(arbor_mesh_add_vert(m, a, NULL) && arbor_mesh_add_vert(m, b, NULL) &&
+                     arbor_mesh_add_vert(m, c, NULL));
+    TEST_ASSERT_TRUE(arbor_mesh_add_tri(m, v, v + 1, v + 2, 0, NULL));
+}
+
+static arbor_vec3 random_point(test_rng *g, float lo, float hi)
+{
+    return vec3(lo + (hi - lo) * test_rng_float(g), lo + (hi - lo) * test_rng_float(g),
+                lo + (hi - lo) * test_rng_float(g));
+}
+
+static void test_random_soups(void)
+{
+    static const uint32_t sizes[] = {40, 300, 3000};
+    for (size_t i = 0; i < sizeof sizes / sizeof sizes[0]; i++) {
+        arbor_mesh m;
+        test_random_soup(&m, sizes[i], 1000 + i);
+        char name[64];
+        snprintf(name, sizeof name, "soup %u", sizes[i]);
+        check_mesh(&m, sizes[i] < 1000 ? 4000 : 20000, name);
+        arbor_mesh_free(&m);
+    }
+}
+
+static void test_empty_mesh_misses_everything(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    arbor_ray r = {vec3(0, 0, 0), 0.0f, vec3(0, 0, 1), INFINITY};
+    for (size_t k = 0; k < NBUILDERS; k++) {
+        arbor_accel *a = build_bvh(&m, builders[k], 1);
+        arbor_tree_stats s;
+        arbor_accel_stats(a, &s);
+        TEST_ASSERT_EQUAL_UINT64(0, s.nodes);
+        TEST_ASSERT_EQUAL_UINT64(0, s.refs);
+        arbor_hit h;
+        arbor_trace_counts c = {0, 0};
+        arbor_ray q = r;
+        TEST_ASSERT_FALSE(arbor_accel_intersect(a, &q, &h));
+        TEST_ASSERT_FALSE(arbor_accel_intersect_counted(a, &q, &h, &c));
+        TEST_ASSERT_FALSE(arbor_accel_occluded(a, &q));
+        TEST_ASSERT_TRUE(q.tmax == INFINITY);
+        arbor_accel_free(a);
+    }
+    arbor_mesh_free(&m);
+}
+
+/* One triangle: a single leaf, sah_cost 1, and exact hits. */
+static void test_one_triangle(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    add_tri(&m, vec3(0, 0, 0), vec3(1, 0, 0), vec3(0, 1, 0));
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    for (size_t k = 0; k < NBUILDERS; k++) {
+        arbor_accel *a = build_bvh(&m, builders[k], 1);
+        arbor_tree_stats s;
+        arbor_accel_stats(a, &s);
+        TEST_ASSERT_EQUAL_UINT64(1, s.nodes);
+        TEST_ASSERT_EQUAL_UINT64(1, s.leaves);
+        TEST_ASSERT_EQUAL_UINT32(0, s.max_depth);
+        TEST_ASSERT_EQUAL_DOUBLE(1.0, s.sah_cost);
+        TEST_ASSERT_EQUAL_DOUBLE(1.0, s.mean_tris_per_leaf);
+        arbor_ray r = {vec3(0.25f, 0.25f, 2.0f), 0.0f, vec3(0, 0, -1), INFINITY};
+        arbor_hit h;
+        TEST_ASSERT_TRUE(arbor_accel_intersect(a, &r, &h));
+        TEST_ASSERT_EQUAL_FLOAT(2.0f, h.t);
+        TEST_ASSERT_EQUAL_UINT32(0, h.tri);
+        arbor_ray away = {vec3(0.25f, 0.25f, 2.0f), 0.0f, vec3(0, 0, 1), INFINITY};
+        TEST_ASSERT_FALSE(arbor_accel_intersect(a, &away, &h));
+        arbor_accel_free(a);
+    }
+    arbor_mesh_free(&m);
+}
+
+/* Two unit right triangles 10 apart in x with leaves of one: the root and
+ * two leaves, and sah_cost = 1 + (A(left) + A(right)) / A(root) by hand. */
+static void test_stats_by_hand(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    add_tri(&m, vec3(0, 0, 0), vec3(1, 0, 0), vec3(0, 1, 1));
+    add_tri(&m, vec3(10, 0, 0), vec3(11, 0, 0), vec3(10, 1, 1));
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    /* each leaf box is 1 x 1 x 1: area 6; the root is 11 x 1 x 1: area 2 (11 + 1 + 11) */
+    double expect = 1.0 + (6.0 + 6.0) / 46.0;
+    for (size_t k = 0; k < NBUILDERS; k++) {
+        arbor_build_opts o;
+        arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, builders[k]);
+        o.max_leaf_tris = 1;
+        arbor_accel *a = build_valid(&m, &o);
+        arbor_tree_stats s;
+        arbor_accel_stats(a, &s);
+        TEST_ASSERT_EQUAL_UINT64(3, s.nodes);
+        TEST_ASSERT_EQUAL_UINT64(2, s.leaves);
+        TEST_ASSERT_EQUAL_UINT64(0, s.empty_leaves);
+        TEST_ASSERT_EQUAL_UINT32(1, s.max_depth);
+        TEST_ASSERT_EQUAL_DOUBLE(1.0, s.mean_leaf_depth);
+        TEST_ASSERT_EQUAL_DOUBLE(1.0, s.mean_tris_per_leaf);
+        TEST_ASSERT_EQUAL_UINT64(2, s.refs);
+        TEST_ASSERT_EQUAL_UINT64(3 * 32 + 2 * 40, s.bytes);
+        TEST_ASSERT_DOUBLE_WITHIN(1e-9, expect, s.sah_cost);
+        arbor_accel_free(a);
+    }
+    arbor_mesh_free(&m);
+}
+
+/* Triangles of every size and shape whose boxes share one centre: no plane
+ * separates their centroids, yet every builder must stop with small leaves. */
+static void test_same_centroid(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    test_rng g;
+    test_rng_seed(&g, 5);
+    arbor_vec3 c = vec3(0.5f, 0.5f, 0.5f);
+    for (int i = 0; i < 300; i++) {
+        float s = 0.01f + 0.4f * test_rng_float(&g);
+        arbor_vec3 d = vec3(s, s * test_rng_float(&g), s * test_rng_float(&g));
+        /* corners c - d and c + d make the box centre c; the third vertex lies inside */
+        arbor_vec3 inside = vec3_add(c, vec3_mul(d, random_point(&g, -1.0f, 1.0f)));
+        add_tri(&m, vec3_sub(c, d), vec3_add(c, d), inside);
+    }
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    check_mesh(&m, 4000, "same centroid");
+    for (size_t k = 0; k < NBUILDERS; k++) {
+        arbor_accel *a = build_bvh(&m, builders[k], 1);
+        arbor_tree_stats s;
+        arbor_accel_stats(a, &s);
+        TEST_ASSERT_TRUE(s.mean_tris_per_leaf <= 8.0);
+        TEST_ASSERT_TRUE(s.max_depth < 64);
+        arbor_accel_free(a);
+    }
+    arbor_mesh_free(&m);
+}
+
+static void test_copies_of_one_triangle(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    for (int i = 0; i < 500; i++)
+        add_tri(&m, vec3(0.1f, 0.2f, 0.3f), vec3(0.9f, 0.1f, 0.5f), vec3(0.4f, 0.8f, 0.6f));
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    check_mesh(&m, 2000, "copies");
+    arbor_mesh_free(&m);
+}
+
+/* Everything in the plane z = 0.5: every box is flat in z. Besides random
+ * rays, rays straight down the z axis (two zero direction components, one
+ * of them -0) and rays lying in the plane itself. */
+static void test_one_plane(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    test_rng g;
+    test_rng_seed(&g, 6);
+    for (int i = 0; i < 1000; i++) {
+        arbor_vec3 c = random_point(&g, 0.0f, 1.0f);
+        float s = 0.01f + 0.19f * test_rng_float(&g);
+        arbor_vec3 p[3];
+        for (int k = 0; k < 3; k++)
+            p[k] = vec3(c.x + s * (test_rng_float(&g) - 0.5f), c.y + s * (test_rng_float(&g) - 0.5f), 0.5f);
+        add_tri(&m, p[0], p[1], p[2]);
+    }
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    check_mesh(&m, 4000, "plane");
+    arbor_ray rays[2000];
+    for (int i = 0; i < 2000; i++) {
+        arbor_vec3 o = random_point(&g, 0.0f, 1.0f);
+        if (i & 1) {
+            arbor_ray r = {vec3(o.x, o.y, 2.0f), 0.0f, vec3(-0.0f, 0.0f, -1.0f), INFINITY};
+            rays[i] = r;
+        } else {
+            arbor_ray r = {vec3(-1.0f, o.y, 0.5f), 0.0f, vec3(1.0f, 0.0f, 0.0f), INFINITY};
+            rays[i] = r;
+        }
+    }
+    check_builders(&m, rays, 2000, 1, "plane, axis rays");
+    arbor_mesh_free(&m);
+}
+
+/* Rays along the axes whose origins lie exactly on the planes of the mesh's
+ * and the triangles' boxes: 0 * inf in the slab test must not lose a hit. */
+static void test_axis_rays_on_box_planes(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 500, 8);
+    test_rng g;
+    test_rng_seed(&g, 9);
+    enum { N = 3000 };
+    static arbor_ray rays[N];
+    for (int i = 0; i < N; i++) {
+        /* a vertex of a random triangle: an exact box plane on every axis */
+        arbor_vec3 v = m.verts[test_rng_u32(&g) % m.nverts];
+        int axis = i % 3;
+        float sign = (i / 3) & 1 ? 1.0f : -1.0f;
+        arbor_vec3 d = vec3(axis == 0 ? sign : 0.0f, axis == 1 ? sign : 0.0f, axis == 2 ? sign : 0.0f);
+        arbor_vec3 o = vec3_sub(v, vec3_scale(d, 3.0f));
+        if (i & 8)
+            o = vec3(axis == 0 ? o.x : m.bounds.lo.x, axis == 1 ? o.y : m.bounds.hi.y, axis == 2 ? o.z : v.z);
+        arbor_ray r = {o, 0.0f, d, INFINITY};
+        rays[i] = r;
+    }
+    check_builders(&m, rays, N, 1, "axis rays");
+    arbor_mesh_free(&m);
+}
+
+static void test_tiny_and_huge(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    test_rng g;
+    test_rng_seed(&g, 10);
+    for (int i = 0; i < 1500; i++) {
+        arbor_vec3 c = random_point(&g, -100.0f, 100.0f);
+        float s = i % 3 == 0 ? 1e3f : 1e-4f;
+        add_tri(&m, vec3_add(c, random_point(&g, -s, s)), vec3_add(c, random_point(&g, -s, s)),
+                vec3_add(c, random_point(&g, -s, s)));
+    }
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    check_mesh(&m, 4000, "tiny and huge");
+    arbor_mesh_free(&m);
+}
+
+/* Centroids at x = 2^-i: the spatial split peels off one triangle per level
+ * and would go 200 deep; the depth limit must keep the tree under 64. */
+static void test_deep_spatial_run_is_bounded(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    for (int i = 0; i < 200; i++) {
+        float x = ldexpf(1.0f, -i / 2) * (i & 1 ? 1.0f : 1.5f);
+        float s = 0.1f * x;
+        add_tri(&m, vec3(x - s, 0, 0), vec3(x + s, 0, 0), vec3(x, 1, 0.1f));
+    }
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    check_mesh(&m, 2000, "deep run");
+    arbor_accel *a = build_bvh(&m, ARBOR_BUILD_SPATIAL, 1);
+    arbor_tree_stats s;
+    arbor_accel_stats(a, &s);
+    TEST_ASSERT_TRUE(s.max_depth < 64);
+    TEST_ASSERT_TRUE(s.max_depth > 20); /* the run did go deep: the limit was exercised */
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+/* Options: leaves of one triangle, a depth cap, SAH costs. */
+static void test_options(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 1000, 11);
+    arbor_ray *rays = test_random_rays(&m, 2000, 12);
+    truth_set ts = truth_make(&m, rays, 2000);
+    free(rays);
+    for (size_t k = 0; k < NBUILDERS; k++) {
+        arbor_build_opts o;
+        arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, builders[k]);
+        o.max_leaf_tris = 1;
+        arbor_accel *a = build_valid(&m, &o);
+        arbor_tree_stats s;
+        arbor_accel_stats(a, &s);
+        TEST_ASSERT_EQUAL_UINT64(1000, s.leaves);
+        TEST_ASSERT_EQUAL_UINT64(1999, s.nodes);
+        check_rays(a, &m, &ts, "leaf size 1");
+        arbor_accel_free(a);
+
+        arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, builders[k]);
+        o.max_depth = 3;
+        a = build_valid(&m, &o);
+        arbor_accel_stats(a, &s);
+        TEST_ASSERT_EQUAL_UINT32(3, s.max_depth);
+        TEST_ASSERT_TRUE(s.leaves <= 8);
+        check_rays(a, &m, &ts, "depth 3");
+        arbor_accel_free(a);
+    }
+    /* dear triangle tests make the SAH split further: smaller leaves */
+    arbor_build_opts o;
+    arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
+    o.max_leaf_tris = 64;
+    o.cost_intersect = 0.1f;
+    arbor_accel *cheap = build_valid(&m, &o);
+    o.cost_intersect = 10.0f;
+    arbor_accel *dear = build_valid(&m, &o);
+    arbor_tree_stats sc, sd;
+    arbor_accel_stats(cheap, &sc);
+    arbor_accel_stats(dear, &sd);
+    TEST_ASSERT_TRUE(sd.mean_tris_per_leaf < sc.mean_tris_per_leaf);
+    check_rays(dear, &m, &ts, "dear triangles");
+    check_rays(cheap, &m, &ts, "cheap triangles");
+    arbor_accel_free(cheap);
+    arbor_accel_free(dear);
+    truth_free(&ts);
+    arbor_mesh_free(&m);
+}
+
+/* SAH optimises the statistic's own cost model: it beats the other three. */
+static void test_sah_has_lowest_cost(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 5000, 13);
+    double cost[NBUILDERS];
+    for (size_t k = 0; k < NBUILDERS; k++) {
+        arbor_accel *a = build_bvh(&m, builders[k], 1);
+        arbor_tree_stats s;
+        arbor_accel_stats(a, &s);
+        cost[k] = s.sah_cost;
+        arbor_accel_free(a);
+    }
+    for (size_t k = 0; k + 1 < NBUILDERS; k++)
+        TEST_ASSERT_TRUE(cost[NBUILDERS - 1] < cost[k]);
+    arbor_mesh_free(&m);
+}
+
+/* The build on two threads makes the same tree as on one: same statistics
+ * and the same hits, on a soup big enough to fork at the top levels. */
+static void test_parallel_build_matches_serial(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 40000, 14);
+    arbor_ray *rays = test_random_rays(&m, 500, 15);
+    truth_set ts = truth_make(&m, rays, 100);
+    for (size_t k = 0; k < NBUILDERS; k++) {
+        arbor_accel *one = build_bvh(&m, builders[k], 1);
+        arbor_accel *two = build_bvh(&m, builders[k], 2);
+        arbor_tree_stats s1, s2;
+        arbor_accel_stats(one, &s1);
+        arbor_accel_stats(two, &s2);
+        TEST_ASSERT_EQUAL_UINT64(s1.nodes, s2.nodes);
+        TEST_ASSERT_EQUAL_UINT64(s1.leaves, s2.leaves);
+        TEST_ASSERT_EQUAL_UINT32(s1.max_depth, s2.max_depth);
+        TEST_ASSERT_DOUBLE_WITHIN(1e-9 * s1.sah_cost, s1.sah_cost, s2.sah_cost);
+        for (size_t i = 0; i < 500; i++) {
+            arbor_ray r1 = rays[i], r2 = rays[i];
+            arbor_hit h1, h2;
+            bool f1 = arbor_accel_intersect(one, &r1, &h1);
+            TEST_ASSERT_EQUAL(f1, arbor_accel_intersect(two, &r2, &h2));
+            if (f1) {
+                TEST_ASSERT_TRUE(h1.t == h2.t && h1.tri == h2.tri);
+            }
+        }
+        check_rays(two, &m, &ts, "parallel");
+        arbor_accel_free(one);
+        arbor_accel_free(two);
+    }
+    free(rays);
+    truth_free(&ts);
+    arbor_mesh_free(&m);
+}
+
+/* One corruption of a built tree or its statistics. */
+typedef void (*corruption)(bvh_tree *t, arbor_tree_stats *s);
+
+static uint32_t first_leaf(const bvh_tree *t)
+{
+    uint32_t i = 0;
+    while (t->nodes[i].count == 0)
+        i++;
+    return i;
+}
+
+static void shrink_leaf_box(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    bvh_node *n = &t->nodes[first_leaf(t)];
+    n->bounds[3] = n->bounds[0];
+}
+static void grow_child_box(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    t->nodes[1].bounds[4] += 1.0f;
+}
+static void duplicate_triangle(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    t->tri_index[1] = t->tri_index[0];
+}
+static void move_vertex_copy(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    t->tri_verts[5].y += 1e-3f;
+}
+static void misplace_right_child(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    t->nodes[0].index++;
+}
+static void shift_leaf_range(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    t->nodes[first_leaf(t)].index++;
+}
+static void miscount_nodes(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)t;
+    s->nodes++;
+}
+static void miscount_depth(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)t;
+    s->max_depth++;
+}
+static void misstate_mean_leaf_depth(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)t;
+    s->mean_leaf_depth *= 1.01;
+}
+static void misstate_sah_cost(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)t;
+    s->sah_cost *= 1.00001;
+}
+
+/* The validator is only worth its checks if it catches a broken tree: each
+ * corruption of a freshly built tree must make it fail, and the tree as
+ * built must pass. */
+static void test_validator_catches_corruption(void)
+{
+    static const corruption corruptions[] = {
+        shrink_leaf_box,   grow_child_box,  duplicate_triangle, move_vertex_copy,         misplace_right_child,
+        shift_leaf_range,  miscount_nodes,  miscount_depth,     misstate_mean_leaf_depth, misstate_sah_cost,
+    };
+    arbor_mesh m;
+    test_random_soup(&m, 500, 17);
+    arbor_build_opts o;
+    arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
+    for (size_t k = 0; k < sizeof corruptions / sizeof corruptions[0]; k++) {
+        arbor_tree_stats s;
+        arbor_err e;
+        bvh_tree *t = arbor_bvh_ops.build(&m, &o, &s, &e);
+        TEST_ASSERT_NOT_NULL(t);
+        TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(t, &m, &s, &e), e.msg);
+        corruptions[k](t, &s);
+        char msg[64];
+        snprintf(msg, sizeof msg, "corruption %zu went unnoticed", k);
+        TEST_ASSERT_FALSE_MESSAGE(arbor_bvh_ops.validate(t, &m, &s, &e), msg);
+        arbor_bvh_ops.destroy(t);
+    }
+    arbor_mesh_free(&m);
+}
+
+int main(void)
+{
+    UNITY_BEGIN();
+    RUN_TEST(test_empty_mesh_misses_everything);
+    RUN_TEST(test_one_triangle);
+    RUN_TEST(test_stats_by_hand);
+    RUN_TEST(test_random_soups);
+    RUN_TEST(test_same_centroid);
+    RUN_TEST(test_copies_of_one_triangle);
+    RUN_TEST(test_one_plane);
+    RUN_TEST(test_axis_rays_on_box_planes);
+    RUN_TEST(test_tiny_and_huge);
+    RUN_TEST(test_deep_spatial_run_is_bounded);
+    RUN_TEST(test_options);
+    RUN_TEST(test_sah_has_lowest_cost);
+    RUN_TEST(test_parallel_build_matches_serial);
+    RUN_TEST(test_validator_catches_corruption);
+    return UNITY_END();
+}
