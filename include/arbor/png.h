@@ -1,0 +1,24 @@
+/*
+ * png.h - encoding RGB8 images as PNG (libpng), to a file or to memory.
+ *
+ * Tuned for frames that are encoded once and sent at once: zlib level 2 and
+ * the single SUB filter, which keep a 1024x768 frame's encoding far shorter
+ * than its rendering. libpng's errors and warnings never print: errors come
+ * back as an arbor_err, warnings are dropped.
+ *
+ * Images are width * height * 3 bytes, rows top to bottom. The memory
+ * encoder returns a malloc'd buffer the caller frees with free().
+ */
+#ifndef ARBOR_PNG_H
+#define ARBOR_PNG_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "arbor/err.h"
+
+bool arbor_png_write_file(const char *path, const uint8_t *rgb, int width, int height, arbor_err *e);
+bool arbor_png_encode(const uint8_t *rgb, int width, int height, uint8_t **out, size_t *out_len, arbor_err *e);
+
+#endif

@@ -1,0 +1,65 @@
+/*
+ * pool.h - a pool of worker threads that runs jobs split into tasks (the
+ * renderer's frames split into tiles).
+ *
+ * A job is ntasks independent tasks plus a completion callback. Any number
+ * of jobs may be in flight at once: each time a worker takes its next task
+ * it takes it from the next active job in turn (round-robin), so frames that
+ * are rendering at the same time share the workers fairly. A job can be
+ * cancelled at any time; the tasks already running finish, no new one
+ * starts.
+ *
+ * The completion callback `done(ctx, cancelled)` runs exactly once per
+ * submitted job, always on a worker thread (never inside submit, cancel or
+ * destroy), after the last task has finished or, for a cancelled job, after
+ * the tasks that were running have finished. `cancelled` is true when some
+ * tasks never ran. Only after done has returned does arbor_job_wait return.
+ *
+ * Ownership: a job is reference-counted. arbor_job_new returns the caller's
+ * reference; arbor_pool_submit adds one the pool drops after done has
+ * returned; `release(ctx)` runs when the last reference goes, so the task
+ * context lives exactly as long as anyone can still use it. arbor_job_wait
+ * and arbor_job_cancel may be called only before arbor_pool_destroy;
+ * arbor_job_release at any time (including inside done).
+ *
+ * arbor_pool_destroy cancels every job not yet finished, lets the workers
+ * call their done callbacks, and joins the workers.
+ */
+#ifndef ARBOR_POOL_H
+#define ARBOR_POOL_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "arbor/err.h"
+
+typedef struct arbor_pool arbor_pool;
+typedef struct arbor_job arbor_job;
+
+/* Runs task number `task` (0 <= task < ntasks) of the job. */
+typedef void (*arbor_task_fn)(void *ctx, uint32_t task);
+/* The job is over; see above. */
+typedef void (*arbor_job_done_fn)(void *ctx, bool cancelled);
+/* The last reference to the job is gone: free ctx. May be NULL. */
+typedef void (*arbor_job_release_fn)(void *ctx);
+
+/* A pool of `threads` workers (0 = one per core). NULL on failure. */
+arbor_pool *arbor_pool_create(int threads, arbor_err *e);
+int arbor_pool_threads(const arbor_pool *p);
+void arbor_pool_destroy(arbor_pool *p);
+
+/* A job of ntasks (>= 1) tasks, not yet submitted. NULL when out of memory. */
+arbor_job *arbor_job_new(uint32_t ntasks, arbor_task_fn run, arbor_job_done_fn done, arbor_job_release_fn release,
+                         void *ctx, arbor_err *e);
+/* Queues the job. Fails (and the job stays unsubmitted, its done never
+ * called) when the pool is shutting down or the job was submitted before. */
+bool arbor_pool_submit(arbor_pool *p, arbor_job *j, arbor_err *e);
+/* Asks the job to stop; a no-op once it is finishing. Never blocks on tasks. */
+void arbor_job_cancel(arbor_job *j);
+/* Blocks until done has returned; true when the job ran to completion,
+ * false when it was cancelled. The job must have been submitted. */
+bool arbor_job_wait(arbor_job *j);
+/* Drops the caller's reference. */
+void arbor_job_release(arbor_job *j);
+
+#endif
