@@ -1,0 +1,294 @@
+/*
+ * obj.c - the Wavefront OBJ reader (arbor_load_obj_text, see
+ * include/arbor/load.h).
+ *
+ * One pass over the buffer with a cursor, no allocation per line. Read: v
+ * (x y z; w or vertex colours after them ignored), vn (validated, counted),
+ * vt (counted), f in every index form (a, a/b, a/b/c, a//c; negative = from
+ * the end of the list so far), usemtl, mtllib. o, g, s and every other
+ * statement are skipped.
+ */
+#include <stdio.h>
+#include <string.h>
+
+#include "arbor/load.h"
+#include "loader.h"
+
+/* At most this many distinct material libraries per model: each one is a
+ * file read, and a hostile OBJ could name thousands. */
+#define OBJ_MAX_LIBRARIES 16
+
+typedef struct {
+    const char *name; /* points into the OBJ text */
+    size_t len;
+} obj_library;
+
+typedef struct {
+    text_cursor c;
+    const char *dir; /* folder for mtllib paths; NULL: libraries not loaded */
+    arbor_mesh *m;
+    material_table mats;
+    uint32_t ntexcoords, nnormals;
+    uint32_t mat; /* material of the faces that follow */
+    obj_library libs[OBJ_MAX_LIBRARIES];
+    uint32_t nlibs;
+} obj_reader;
+
+/* ---- faces ---- */
+
+/* One index of a face vertex as written. */
+typedef struct {
+    const char *digits;
+    int ndigits;
+    int64_t value;
+    bool present;
+} obj_index;
+
+/* Splits the face vertex at p ("v", "v/t", "v/t/n" or "v//n") into its
+ * position, texture and normal indices; returns its end, or NULL when it is
+ * malformed. */
+static const char *split_face_vertex(const text_cursor *c, const char *p, obj_index idx[3])
+{
+    memset(idx, 0, 3 * sizeof *idx);
+    for (int k = 0; k < 3; k++) {
+        bool skipped = k == 1 && p < c->end && *p == '/'; /* "v//n" */
+        if (!skipped) {
+            const char *q = text_parse_int(p, c->end, &idx[k].value);
+            if (q == NULL)
+                return NULL;
+            idx[k].digits = p;
+            idx[k].ndigits = (int)(q - p);
+            idx[k].present = true;
+            p = q;
+        }
+        if (k == 2 || p == c->end || *p != '/')
+            break;
+        p++;
+    }
+    return text_is_delim(c, p) ? p : NULL;
+}
+
+/* Turns a 1-based (or negative, counted back from the end) index into a
+ * 0-based one. */
+static bool resolve_index(obj_reader *r, const obj_index *idx, uint32_t count, const char *what,
+                          const char *plural, uint32_t *out, arbor_err *e)
+{
+    if (idx->value > 0 && idx->value <= (int64_t)count) {
+        *out = (uint32_t)(idx->value - 1);
+        return true;
+    }
+    if (idx->value < 0 && -idx->value <= (int64_t)count) {
+        *out = (uint32_t)((int64_t)count + idx->value);
+        return true;
+    }
+    if (idx->value == 0)
+        return text_fail(&r->c, e, "%s index 0 is invalid (OBJ indices start at 1)", what);
+    int shown = idx->ndigits > 40 ? 40 : idx->ndigits;
+    return text_fail(&r->c, e, "%s index %.*s%s out of range (%u %s)", what, shown, idx->digits,
+                     shown < idx->ndigits ? "..." : "", count, plural);
+}
+
+/* Reads one face vertex; only the position index is kept, the others are
+ * checked against the vt and vn lines seen so far. */
+static bool read_face_vertex(obj_reader *r, uint32_t *vert, arbor_err *e)
+{
+    obj_index idx[3];
+    const char *end = split_face_vertex(&r->c, r->c.p, idx);
+    if (end == NULL) {
+        char word[40];
+        text_excerpt(word, sizeof word, r->c.p, r->c.end);
+        return text_fail(&r->c, e, "malformed face vertex '%s'", word);
+    }
+    uint32_t unused;
+    if (!resolve_index(r, &idx[0], r->m->nverts, "vertex", "vertices", vert, e)
+        || (idx[1].present
+            && !resolve_index(r, &idx[1], r->ntexcoords, "texture coordinate", "texture coordinates", &unused, e))
+        || (idx[2].present && !resolve_index(r, &idx[2], r->nnormals, "normal", "normals", &unused, e)))
+        return false;
+    r->c.p = end;
+    return true;
+}
+
+/* A polygon of k vertices becomes the fan of k - 2 triangles around its
+ * first vertex, added as the vertices are read. */
+static bool read_face(obj_reader *r, arbor_err *e)
+{
+    uint32_t first = 0, prev = 0, n = 0;
+    while (!text_at_eol(&r->c)) {
+        uint32_t v;
+        if (!read_face_vertex(r, &v, e))
+            return false;
+        if (n >= 2 && !arbor_mesh_add_tri(r->m, first, prev, v, r->mat, e))
+            return false;
+        if (n == 0)
+            first = v;
+        prev = v;
+        n++;
+    }
+    if (n < 3)
+        return text_fail(&r->c, e, "face has %u vertices (needs at least 3)", n);
+    return true;
+}
+
+/* ---- vertices ---- */
+
+static bool read_vertex(obj_reader *r, arbor_err *e)
+{
+    arbor_vec3 p;
+    if (!text_read_float(&r->c, "vertex coordinate", &p.x, e) || !text_read_float(&r->c, "vertex coordinate", &p.y, e)
+        || !text_read_float(&r->c, "vertex coordinate", &p.z, e))
+        return false;
+    return arbor_mesh_add_vert(r->m, p, e);
+}
+
+/* Normals are not kept (the renderer uses geometric normals), but faces
+ * refer to them, so they are checked and counted. */
+static bool read_normal(obj_reader *r, arbor_err *e)
+{
+    float n;
+    for (int k = 0; k < 3; k++)
+        if (!text_read_float(&r->c, "normal component", &n, e))
+            return false;
+    if (r->nnormals < UINT32_MAX)
+        r->nnormals++;
+    return true;
+}
+
+/* ---- materials ---- */
+
+static bool use_material(obj_reader *r, arbor_err *e)
+{
+    const char *w;
+    size_t n = text_word(&r->c, &w);
+    if (n == 0)
+        return text_fail(&r->c, e, "usemtl without a material name");
+    char name[ARBOR_MATERIAL_NAME_MAX];
+    material_name(name, w, n);
+    int64_t found = material_table_find(&r->mats, name);
+    if (found >= 0) {
+        r->mat = (uint32_t)found;
+        return true;
+    }
+    arbor_mesh_warn(r->m, "%s:%u: material '%s' is not defined; using default values", r->c.name, r->c.line, name);
+    return material_table_add(&r->mats, name, &r->mat, e);
+}
+
+/* A relative path that stays inside its folder: no leading '/', and no ".."
+ * climbing above where it starts ("a/../b" is fine, "a/../../b" is not). */
+static bool path_stays_inside(const char *path, size_t len)
+{
+    if (len == 0 || path[0] == '/' || path[0] == '\\')
+        return false;
+    long depth = 0;
+    for (size_t i = 0; i < len;) {
+        size_t j = i;
+        while (j < len && path[j] != '/' && path[j] != '\\')
+            j++;
+        if (j - i == 2 && path[i] == '.' && path[i + 1] == '.')
+            depth--;
+        else if (!(j - i == 0 || (j - i == 1 && path[i] == '.')))
+            depth++;
+        if (depth < 0)
+            return false;
+        i = j + 1;
+    }
+    return true;
+}
+
+/* True when the library (w, n) was loaded before; otherwise remembers it
+ * (or warns that there are too many). */
+static bool seen_library(obj_reader *r, const char *w, size_t n)
+{
+    for (uint32_t i = 0; i < r->nlibs; i++)
+        if (r->libs[i].len == n && memcmp(r->libs[i].name, w, n) == 0)
+            return true;
+    if (r->nlibs == OBJ_MAX_LIBRARIES) {
+        arbor_mesh_warn(r->m, "%s:%u: more than %d material libraries; '%.*s' ignored", r->c.name, r->c.line,
+                        OBJ_MAX_LIBRARIES, (int)n, w);
+        return true;
+    }
+    r->libs[r->nlibs].name = w;
+    r->libs[r->nlibs].len = n;
+    r->nlibs++;
+    return false;
+}
+
+/* Missing or unreadable libraries (and ones outside the model's folder) are
+ * warnings: the model still loads, with default materials. A library that
+ * exists but is malformed fails the load like the OBJ itself would. */
+static bool load_library(obj_reader *r, const char *w, size_t n, arbor_err *e)
+{
+    if (!path_stays_inside(w, n)) {
+        arbor_mesh_warn(r->m, "%s:%u: material library '%.*s' is outside the model's folder; not loaded", r->c.name,
+                        r->c.line, (int)n, w);
+        return true;
+    }
+    char path[4096];
+    int len = snprintf(path, sizeof path, "%s/%.*s", r->dir, (int)n, w);
+    if (len < 0 || (size_t)len >= sizeof path) {
+        arbor_mesh_warn(r->m, "%s:%u: material library path too long; not loaded", r->c.name, r->c.line);
+        return true;
+    }
+    arbor_err err;
+    if (mtl_load(&r->mats, path, &err))
+        return true;
+    if (err.status != ARBOR_ERR_IO) {
+        if (e != NULL)
+            *e = err;
+        return false;
+    }
+    arbor_mesh_warn(r->m, "%s:%u: material library not loaded (%s); using default materials", r->c.name, r->c.line,
+                    err.msg);
+    return true;
+}
+
+static bool load_libraries(obj_reader *r, arbor_err *e)
+{
+    const char *w;
+    size_t n;
+    while ((n = text_word(&r->c, &w)) > 0)
+        if (r->dir != NULL && !seen_library(r, w, n) && !load_library(r, w, n, e))
+            return false;
+    return true;
+}
+
+/* ---- statements ---- */
+
+static bool read_statement(obj_reader *r, const char *w, size_t n, arbor_err *e)
+{
+    if (n == 1 && w[0] == 'v')
+        return read_vertex(r, e);
+    if (n == 1 && w[0] == 'f')
+        return read_face(r, e);
+    if (n == 2 && w[0] == 'v' && w[1] == 'n')
+        return read_normal(r, e);
+    if (n == 2 && w[0] == 'v' && w[1] == 't') {
+        if (r->ntexcoords < UINT32_MAX)
+            r->ntexcoords++;
+        return true;
+    }
+    if (text_word_is(w, n, "usemtl"))
+        return use_material(r, e);
+    if (text_word_is(w, n, "mtllib"))
+        return load_libraries(r, e);
+    return true; /* comments, o, g, s, and statements arbor has no use for */
+}
+
+bool arbor_load_obj_text(const char *text, size_t len, const char *name, const char *dir, arbor_mesh *m,
+                         arbor_err *e)
+{
+    arbor_mesh_init(m);
+    obj_reader r = {.dir = dir, .m = m};
+    text_cursor_init(&r.c, text, len, name);
+    material_table_init(&r.mats, m);
+    /* material 0 is the default, for faces before any usemtl */
+    bool ok = material_table_add(&r.mats, "default", &r.mat, e);
+    while (ok && r.c.p < r.c.end) {
+        const char *w;
+        size_t n = text_word(&r.c, &w);
+        ok = read_statement(&r, w, n, e);
+        text_next_line(&r.c);
+    }
+    material_table_free(&r.mats);
+    return loader_finish(ok, m, name, e);
+}
