@@ -83,8 +83,11 @@ run: $(BUILD)/arbord
 	    $(BUILD)/arbord render --model $$m --mode shaded --spp 4 -o $$out || exit 1; \
 	done
 
+# The small models are committed in models/; SIZE=large writes multi-million-triangle
+# versions to build/models-large instead (never committed, not rendered by make run).
 models: $(BUILD)/arbord
-	$(BUILD)/arbord gen --all $(if $(SIZE),--size $(SIZE)) --dir models
+	@mkdir -p $(BUILD)/models-large
+	$(BUILD)/arbord gen --all $(if $(SIZE),--size $(SIZE) --dir $(BUILD)/models-large,--dir models)
 
 bench: $(BUILD)/arbord
 	$(BUILD)/arbord bench $(foreach m,$(wildcard $(SHARED)/models/*.obj $(SHARED)/models/*.obj.gz),--model $(m))

@@ -581,13 +581,13 @@ static const struct {
     arbor_gen_params small, large;
 } catalogue[ARBOR_GEN_COUNT] = {
     [ARBOR_GEN_CORNELL] = {"cornell", "Cornell box, mirror block, ceiling light; n: every quad split n x n",
-                           {U, 1}, {U, 256}},
-    [ARBOR_GEN_MENGER] = {"menger", "Menger sponge, closed surface; level: recursion depth", {3, U}, {5, U}},
+                           {U, 1}, {U, 128}},
+    [ARBOR_GEN_MENGER] = {"menger", "Menger sponge, closed surface; level: recursion depth", {3, U}, {4, U}},
     [ARBOR_GEN_SPHEREFLAKE] = {"sphereflake",
                                "Haines' sphere-flake; level: recursion depth, n: root sphere's subdivisions",
                                {3, 3}, {5, 5}},
-    [ARBOR_GEN_HEIGHTFIELD] = {"heightfield", "fractal terrain; n: n x n quads", {U, 128}, {U, 2048}},
-    [ARBOR_GEN_SPHERE] = {"sphere", "closed icosphere with shared vertices; level: subdivisions", {4, U}, {9, U}},
+    [ARBOR_GEN_HEIGHTFIELD] = {"heightfield", "fractal terrain; n: n x n quads", {U, 128}, {U, 1024}},
+    [ARBOR_GEN_SPHERE] = {"sphere", "closed icosphere with shared vertices; level: subdivisions", {4, U}, {8, U}},
 };
 #undef U
 
