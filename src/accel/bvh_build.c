@@ -16,10 +16,11 @@
  *   mean     the mean centroid on that axis;
  *   sah      binned SAH (Wald, "On fast Construction of SAH-based Bounding
  *            Volume Hierarchies", 2007): centroids fall into BVH_SAH_BINS
- *            bins per axis, the cost of each of the bins - 1 planes per axis
- *            is evaluated from prefix and suffix sums of the bins, and the
- *            cheapest plane wins; the node stays a leaf when that costs more
- *            than intersecting its triangles (and it is small enough).
+ *            bins per axis (fewer for small nodes), the cost of each plane
+ *            between bins is evaluated from prefix and suffix sums of the
+ *            bins, and the cheapest plane wins; the node stays a leaf when
+ *            that costs more than intersecting its triangles (and it is
+ *            small enough).
  * When a split would leave one side empty (rounding, or everything on one
  * side of the plane) the node splits at the object median instead, which
  * always gives two non-empty halves; when all centroids coincide the range is
@@ -53,14 +54,21 @@
 #define BVH_FORK_MIN_TRIS 8192
 #define BVH_FORK_EXTRA_LEVELS 2
 
+/* A box as the builder keeps it: four lanes per corner, the fourth always 0,
+ * so that growing a box is one 4-wide min and max that the compiler can
+ * vectorise (binning, the inner loop of the SAH build, is mostly that). */
+typedef struct {
+    float lo[4], hi[4];
+} build_box;
+
 typedef struct {
     arbor_builder builder;
     uint32_t max_leaf;       /* a node with more triangles is always split */
     uint32_t max_depth;      /* a node at this depth is always a leaf */
     uint32_t fork_depth;     /* nodes above this depth may fork */
     float cost_traverse, cost_intersect;
-    const arbor_aabb *tri_box;  /* per mesh triangle */
-    const float *centroid;      /* per mesh triangle: x, y, z of its box centre */
+    const build_box *tri_box;   /* per mesh triangle */
+    const float *centroid;      /* per mesh triangle: x, y, z of its box centre, 0 */
     uint32_t *idx;              /* triangle indices; each task owns a range */
     bvh_node *nodes;            /* each task owns a range of slots */
 } bvh_builder;
@@ -76,16 +84,37 @@ typedef struct {
 static inline float min_f(float a, float b) { return a < b ? a : b; }
 static inline float max_f(float a, float b) { return a > b ? a : b; }
 
-static inline void box_add(arbor_aabb *b, const arbor_aabb *t)
+static inline void box_empty(build_box *b)
 {
-    b->lo = vec3(min_f(b->lo.x, t->lo.x), min_f(b->lo.y, t->lo.y), min_f(b->lo.z, t->lo.z));
-    b->hi = vec3(max_f(b->hi.x, t->hi.x), max_f(b->hi.y, t->hi.y), max_f(b->hi.z, t->hi.z));
+    for (int a = 0; a < 3; a++) {
+        b->lo[a] = INFINITY;
+        b->hi[a] = -INFINITY;
+    }
+    b->lo[3] = b->hi[3] = 0.0f;
 }
 
-static inline void box_add_point(arbor_aabb *b, const float *p)
+static inline void box_add(build_box *b, const build_box *t)
 {
-    b->lo = vec3(min_f(b->lo.x, p[0]), min_f(b->lo.y, p[1]), min_f(b->lo.z, p[2]));
-    b->hi = vec3(max_f(b->hi.x, p[0]), max_f(b->hi.y, p[1]), max_f(b->hi.z, p[2]));
+    for (int a = 0; a < 4; a++) {
+        b->lo[a] = min_f(b->lo[a], t->lo[a]);
+        b->hi[a] = max_f(b->hi[a], t->hi[a]);
+    }
+}
+
+/* p: four floats, the fourth 0 */
+static inline void box_add_point(build_box *b, const float *p)
+{
+    for (int a = 0; a < 4; a++) {
+        b->lo[a] = min_f(b->lo[a], p[a]);
+        b->hi[a] = max_f(b->hi[a], p[a]);
+    }
+}
+
+/* Surface area of a non-empty box, computed as aabb_area does. */
+static inline float box_area(const build_box *b)
+{
+    float x = b->hi[0] - b->lo[0], y = b->hi[1] - b->lo[1], z = b->hi[2] - b->lo[2];
+    return 2.0f * (x * y + y * z + z * x);
 }
 
 static uint32_t ceil_log2(uint32_t n)
@@ -98,18 +127,18 @@ static uint32_t ceil_log2(uint32_t n)
 
 static inline float centroid_axis(const bvh_builder *B, uint32_t tri, int axis)
 {
-    return B->centroid[3 * (size_t)tri + (size_t)axis];
+    return B->centroid[4 * (size_t)tri + (size_t)axis];
 }
 
 /* The box of the triangles in idx[b, e) and the box of their centroids. */
-static void range_bounds(const bvh_builder *B, uint32_t b, uint32_t e, arbor_aabb *box, arbor_aabb *cbox)
+static void range_bounds(const bvh_builder *B, uint32_t b, uint32_t e, build_box *box, build_box *cbox)
 {
-    *box = aabb_empty();
-    *cbox = aabb_empty();
+    box_empty(box);
+    box_empty(cbox);
     for (uint32_t i = b; i < e; i++) {
         uint32_t t = B->idx[i];
         box_add(box, &B->tri_box[t]);
-        box_add_point(cbox, &B->centroid[3 * (size_t)t]);
+        box_add_point(cbox, &B->centroid[4 * (size_t)t]);
     }
 }
 
@@ -119,18 +148,18 @@ static void range_bounds(const bvh_builder *B, uint32_t b, uint32_t e, arbor_aab
 static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, int axis, float pos)
 {
     uint32_t *idx = B->idx;
-    uint32_t i = b, j = e;
-    /* invariant: idx[b, i) below pos, idx[j, e) not below pos */
-    while (i < j) {
-        if (centroid_axis(B, idx[i], axis) < pos) {
-            i++;
-        } else {
-            uint32_t tmp = idx[i];
-            idx[i] = idx[--j];
-            idx[j] = tmp;
-        }
+    uint32_t m = b;
+    /* invariant: idx[b, m) below pos, idx[m, i) not below. Every element is
+     * swapped and m advances by the comparison's value: no branch on it,
+     * which would be mispredicted half the time near the root. */
+    for (uint32_t i = b; i < e; i++) {
+        uint32_t t = idx[i];
+        uint32_t below = centroid_axis(B, t, axis) < pos;
+        idx[i] = idx[m];
+        idx[m] = t;
+        m += below;
     }
-    return i;
+    return m;
 }
 
 static float median_of_three(float a, float b, float c)
@@ -176,17 +205,63 @@ static float centroid_mean(const bvh_builder *B, uint32_t b, uint32_t e, int axi
     return (float)(sum / (double)(e - b));
 }
 
+/* The bins of the three axes: boxes (32 bytes, so aligned ones never straddle
+ * a cache line) and triangle counts. */
 typedef struct {
-    arbor_aabb box;
-    uint32_t count;
-} sah_bin;
+    _Alignas(64) build_box box[3][BVH_SAH_BINS];
+    uint32_t count[3][BVH_SAH_BINS];
+} sah_bins;
 
-static inline uint32_t sah_bin_index(float c, float lo, float scale)
+/* The bin of centroid coordinate c among bins last + 1 bins from lo, each
+ * 1 / scale wide. Clamped without branches (binning is the build's inner
+ * loop); a NaN lands in bin 0. */
+static inline uint32_t sah_bin_index(float c, float lo, float scale, float last)
 {
     float f = (c - lo) * scale;
-    if (!(f > 0.0f))
-        return 0;
-    return f < (float)(BVH_SAH_BINS - 1) ? (uint32_t)f : BVH_SAH_BINS - 1;
+    f = f > 0.0f ? f : 0.0f;
+    f = f < last ? f : last;
+    return (uint32_t)f;
+}
+
+/* The cheapest plane of one axis' bins by the sum A(l) N(l) + A(r) N(r):
+ * sets *plane (the plane after bin *plane) and returns the sum, or INFINITY
+ * if no plane has triangles on both sides. Planes after an empty bin split
+ * the triangles like the plane before it, so only the others are tried. */
+static float sah_sweep(const build_box *box, const uint32_t *count, uint32_t nbins, uint32_t *plane)
+{
+    /* right[j], right_count[j]: A N and N of the bins after plane j */
+    float right[BVH_SAH_BINS];
+    uint32_t right_count[BVH_SAH_BINS];
+    build_box acc;
+    box_empty(&acc);
+    uint32_t n = 0;
+    float an = 0.0f;
+    for (uint32_t j = nbins - 1; j > 0; j--) {
+        if (count[j] > 0) {
+            box_add(&acc, &box[j]);
+            n += count[j];
+            an = box_area(&acc) * (float)n;
+        }
+        right[j - 1] = an;
+        right_count[j - 1] = n;
+    }
+    float best = INFINITY;
+    box_empty(&acc);
+    n = 0;
+    for (uint32_t j = 0; j + 1 < nbins; j++) {
+        if (count[j] == 0)
+            continue;
+        box_add(&acc, &box[j]);
+        n += count[j];
+        if (right_count[j] == 0)
+            break;
+        float cost = box_area(&acc) * (float)n + right[j];
+        if (cost < best) {
+            best = cost;
+            *plane = j;
+        }
+    }
+    return best;
 }
 
 /* Binned SAH over the three axes of idx[b, e), whose box has area `area` and
@@ -194,58 +269,42 @@ static inline uint32_t sah_bin_index(float c, float lo, float scale)
  * cheapest plane and returns whether splitting there beats a leaf, by the
  * cost model Ct A(n) + Ci (A(l) N(l) + A(r) N(r)) against Ci A(n) N(n)
  * (the usual one multiplied through by A(n), so flat nodes need no division).
- * *axis and *pos stay as they came if no plane has triangles on both sides. */
-static bool sah_choose(const bvh_builder *B, uint32_t b, uint32_t e, float area, const arbor_aabb *cbox, int *axis,
+ * *axis and *pos stay as they came if no plane has triangles on both sides.
+ * Nodes of fewer than BVH_SAH_BINS triangles use as many bins as they have
+ * triangles (at least 16): more would be mostly empty. */
+static bool sah_choose(const bvh_builder *B, uint32_t b, uint32_t e, float area, const build_box *cbox, int *axis,
                        float *pos)
 {
-    sah_bin bins[3][BVH_SAH_BINS];
-    float lo[3] = {cbox->lo.x, cbox->lo.y, cbox->lo.z};
-    float ext[3] = {cbox->hi.x - lo[0], cbox->hi.y - lo[1], cbox->hi.z - lo[2]};
+    uint32_t nbins = e - b < BVH_SAH_BINS ? (e - b > 16 ? e - b : 16) : BVH_SAH_BINS;
+    sah_bins bins;
+    const float *lo = cbox->lo;
     float scale[3];
     for (int k = 0; k < 3; k++) {
-        scale[k] = ext[k] > 0.0f ? (float)BVH_SAH_BINS / ext[k] : 0.0f;
-        for (int j = 0; j < BVH_SAH_BINS; j++) {
-            bins[k][j].box = aabb_empty();
-            bins[k][j].count = 0;
+        float ext = cbox->hi[k] - lo[k];
+        scale[k] = ext > 0.0f ? (float)nbins / ext : 0.0f;
+        for (uint32_t j = 0; j < nbins; j++) {
+            box_empty(&bins.box[k][j]);
+            bins.count[k][j] = 0;
         }
     }
+    float last = (float)(nbins - 1);
     for (uint32_t i = b; i < e; i++) {
         uint32_t t = B->idx[i];
-        const float *c = &B->centroid[3 * (size_t)t];
+        const float *c = &B->centroid[4 * (size_t)t];
         for (int k = 0; k < 3; k++) {
-            sah_bin *bin = &bins[k][sah_bin_index(c[k], lo[k], scale[k])];
-            bin->count++;
-            box_add(&bin->box, &B->tri_box[t]);
+            uint32_t j = sah_bin_index(c[k], lo[k], scale[k], last);
+            bins.count[k][j]++;
+            box_add(&bins.box[k][j], &B->tri_box[t]);
         }
     }
-    double best = INFINITY;
+    float best = INFINITY;
     for (int k = 0; k < 3; k++) {
-        if (scale[k] == 0.0f)
-            continue; /* every centroid in one bin: no plane to try */
-        /* right[j]: A N of the bins after plane j (plane j lies after bin j) */
-        double right[BVH_SAH_BINS - 1];
-        uint32_t right_count[BVH_SAH_BINS - 1];
-        arbor_aabb acc = aabb_empty();
-        uint32_t n = 0;
-        for (int j = BVH_SAH_BINS - 1; j > 0; j--) {
-            box_add(&acc, &bins[k][j].box);
-            n += bins[k][j].count;
-            right[j - 1] = (double)aabb_area(acc) * n;
-            right_count[j - 1] = n;
-        }
-        acc = aabb_empty();
-        n = 0;
-        for (int j = 0; j < BVH_SAH_BINS - 1; j++) {
-            box_add(&acc, &bins[k][j].box);
-            n += bins[k][j].count;
-            if (n == 0 || right_count[j] == 0)
-                continue;
-            double cost = (double)aabb_area(acc) * n + right[j];
-            if (cost < best) {
-                best = cost;
-                *axis = k;
-                *pos = lo[k] + (float)(j + 1) / scale[k];
-            }
+        uint32_t plane = 0;
+        float cost = scale[k] > 0.0f ? sah_sweep(bins.box[k], bins.count[k], nbins, &plane) : INFINITY;
+        if (cost < best) {
+            best = cost;
+            *axis = k;
+            *pos = lo[k] + (float)(plane + 1) / scale[k];
         }
     }
     double split_cost = (double)B->cost_traverse * area + (double)B->cost_intersect * best;
@@ -256,15 +315,15 @@ static bool sah_choose(const bvh_builder *B, uint32_t b, uint32_t e, float area,
 /* Where the node over idx[b, e) at depth `depth` splits: the index in (b, e)
  * where its right child's triangles start, or 0 (never such an index) for a
  * leaf. Reorders idx[b, e) to match. */
-static uint32_t choose_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, const arbor_aabb *box,
-                             const arbor_aabb *cbox)
+static uint32_t choose_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, float area,
+                             const build_box *cbox)
 {
     uint32_t n = e - b;
-    arbor_vec3 ext = aabb_extent(*cbox);
+    arbor_vec3 ext = vec3(cbox->hi[0] - cbox->lo[0], cbox->hi[1] - cbox->lo[1], cbox->hi[2] - cbox->lo[2]);
     if (ext.x <= 0.0f && ext.y <= 0.0f && ext.z <= 0.0f)
         return n > B->max_leaf ? b + n / 2 : 0; /* one centroid: any halving is as good */
     int axis = vec3_max_axis(ext);
-    float pos = 0.5f * (vec3_axis(cbox->lo, axis) + vec3_axis(cbox->hi, axis));
+    float pos = 0.5f * (cbox->lo[axis] + cbox->hi[axis]);
     /* Past this depth only median splits are sure to end by BVH_MAX_DEPTH - 1:
      * each halves the count, so n triangles need ceil(log2 n) more levels. */
     if (depth + 1 + ceil_log2(n) > BVH_MAX_DEPTH - 1)
@@ -272,7 +331,7 @@ static uint32_t choose_split(const bvh_builder *B, uint32_t b, uint32_t e, uint3
     uint32_t m;
     switch (B->builder) {
     case ARBOR_BUILD_SAH:
-        if (!sah_choose(B, b, e, aabb_area(*box), cbox, &axis, &pos))
+        if (!sah_choose(B, b, e, area, cbox, &axis, &pos))
             return 0;
         m = partition(B, b, e, axis, pos);
         break;
@@ -360,17 +419,15 @@ static uint32_t build_children_parallel(const bvh_builder *B, uint32_t s, uint32
 static uint32_t build_subtree(const bvh_builder *B, uint32_t s, uint32_t b, uint32_t e, uint32_t depth,
                               bvh_tally *tally)
 {
-    arbor_aabb box, cbox;
+    build_box box, cbox;
     range_bounds(B, b, e, &box, &cbox);
     bvh_node *node = &B->nodes[s];
-    node->bounds[0] = box.lo.x;
-    node->bounds[1] = box.lo.y;
-    node->bounds[2] = box.lo.z;
-    node->bounds[3] = box.hi.x;
-    node->bounds[4] = box.hi.y;
-    node->bounds[5] = box.hi.z;
-    double area = aabb_area(box);
-    uint32_t m = e - b > 1 && depth < B->max_depth ? choose_split(B, b, e, depth, &box, &cbox) : 0;
+    for (int a = 0; a < 3; a++) {
+        node->bounds[a] = box.lo[a];
+        node->bounds[3 + a] = box.hi[a];
+    }
+    float area = box_area(&box);
+    uint32_t m = e - b > 1 && depth < B->max_depth ? choose_split(B, b, e, depth, area, &cbox) : 0;
     if (m == 0) {
         node->index = b;
         node->count = e - b;
@@ -378,7 +435,7 @@ static uint32_t build_subtree(const bvh_builder *B, uint32_t s, uint32_t b, uint
         tally->refs += e - b;
         tally->leaf_depth_sum += depth;
         tally->max_depth = depth > tally->max_depth ? depth : tally->max_depth;
-        tally->leaf_area += area * (double)(e - b);
+        tally->leaf_area += (double)area * (e - b);
         return 1;
     }
     node->count = 0;
@@ -419,18 +476,19 @@ void bvh_tree_free(bvh_tree *t)
 }
 
 /* Each triangle's box and centroid, once for the whole build. */
-static void precompute_triangles(const arbor_mesh *m, arbor_aabb *tri_box, float *centroid, uint32_t *idx)
+static void precompute_triangles(const arbor_mesh *m, build_box *tri_box, float *centroid, uint32_t *idx)
 {
     for (uint32_t t = 0; t < m->ntris; t++) {
-        arbor_vec3 a, b, c;
-        arbor_mesh_tri(m, t, &a, &b, &c);
-        arbor_aabb box = {a, a};
-        box_add_point(&box, &b.x);
-        box_add_point(&box, &c.x);
-        tri_box[t] = box;
-        centroid[3 * (size_t)t + 0] = 0.5f * (box.lo.x + box.hi.x);
-        centroid[3 * (size_t)t + 1] = 0.5f * (box.lo.y + box.hi.y);
-        centroid[3 * (size_t)t + 2] = 0.5f * (box.lo.z + box.hi.z);
+        arbor_vec3 v[3];
+        arbor_mesh_tri(m, t, &v[0], &v[1], &v[2]);
+        build_box *box = &tri_box[t];
+        box_empty(box);
+        for (int k = 0; k < 3; k++) {
+            const float p[4] = {v[k].x, v[k].y, v[k].z, 0.0f};
+            box_add_point(box, p);
+        }
+        for (int a = 0; a < 4; a++)
+            centroid[4 * (size_t)t + a] = 0.5f * (box->lo[a] + box->hi[a]);
         idx[t] = t;
     }
 }
@@ -479,8 +537,8 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
     }
     bvh_builder B;
     builder_init(&B, o);
-    arbor_aabb *tri_box = malloc(n * sizeof *tri_box);
-    float *centroid = malloc(3 * (size_t)n * sizeof *centroid);
+    build_box *tri_box = malloc(n * sizeof *tri_box);
+    float *centroid = malloc(4 * (size_t)n * sizeof *centroid);
     bvh_node *scratch = aligned_alloc(64, ((2 * (size_t)n - 1) * sizeof(bvh_node) + 63) & ~(size_t)63);
     tree->tri_index = malloc(n * sizeof *tree->tri_index);
     tree->tri_verts = malloc(3 * (size_t)n * sizeof *tree->tri_verts);
