@@ -1,0 +1,123 @@
+/*
+ * render.h - rendering frames of a model through an acceleration structure
+ * on a worker pool: the shading modes, anti-aliasing, and frame results.
+ *
+ * A frame is split into 32x32 tiles, each a task of an arbor_pool job, so
+ * several frames can render at once on one pool (see pool.h). Every pixel's
+ * random numbers come from (frame seed, x, y, sample index) only, and each
+ * pixel is written by exactly one tile, so a frame is identical bit for bit
+ * whatever the number of threads.
+ *
+ * Modes:
+ *   shaded   Lambert with the material's Kd plus its Ke, lit by one point
+ *            light at eye + 0.5 d camera_up (PROTOCOL.md's light for the
+ *            protocol view; for other views it moves with the camera), hard
+ *            shadows, 15% ambient so shadows are not black, no falloff;
+ *            mirror materials (arbor_material_is_mirror) reflect, tinted by
+ *            Ks (0.9 when Ks is black), up to max_bounces; gamma 2.2.
+ *   normals  the geometric normal turned toward the viewer, as n*0.5+0.5.
+ *   depth    hit distance as grey: white at the nearest point of the
+ *            model's bounding box, black at its farthest corner.
+ *   ao       ambient occlusion: the fraction of ao_samples cosine-weighted
+ *            rays of length ao_radius * d that escape, as grey.
+ *   heat     false colour (blue, cyan, green, yellow, red, white) of each
+ *            pixel's traversal cost = nodes visited + triangles tested by
+ *            its primary rays (mean over samples); the top of the scale is
+ *            the frame's 99th percentile, reported with the max and mean.
+ * d is the model's diagonal |B.max - B.min|; secondary rays start at
+ * p + 1e-4 d n, n the geometric normal turned toward the incoming ray.
+ *
+ * Anti-aliasing: spp = 1 traces each pixel's centre (the protocol's rays).
+ * When spp is a square k*k, sample s lies jittered in cell (s % k, s / k) of
+ * a k x k grid over the pixel; otherwise the samples are a Latin hypercube
+ * (sample s jittered in column s and in row perm(s) of an spp x spp grid,
+ * perm random per pixel). Samples are averaged in order.
+ *
+ * Ownership: arbor_render_submit returns a frame the caller releases with
+ * arbor_frame_release; the frame owns its image. The accel (and its mesh)
+ * must outlive the frame's rendering, i.e. until done has been called.
+ */
+#ifndef ARBOR_RENDER_H
+#define ARBOR_RENDER_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "arbor/accel.h"
+#include "arbor/camera.h"
+#include "arbor/err.h"
+#include "arbor/pool.h"
+
+#define ARBOR_TILE_SIZE 32
+#define ARBOR_MAX_IMAGE_SIZE 8192
+#define ARBOR_MAX_SPP 64
+#define ARBOR_MAX_BOUNCES 16
+#define ARBOR_MAX_AO_SAMPLES 256
+
+typedef enum {
+    ARBOR_MODE_SHADED,
+    ARBOR_MODE_NORMALS,
+    ARBOR_MODE_DEPTH,
+    ARBOR_MODE_AO,
+    ARBOR_MODE_HEAT,
+    ARBOR_MODE_COUNT
+} arbor_render_mode;
+
+typedef struct {
+    arbor_camera camera;     /* its width and height are the image's */
+    arbor_render_mode mode;
+    int spp;                 /* samples per pixel, 1..ARBOR_MAX_SPP */
+    int max_bounces;         /* mirror reflections, 0..ARBOR_MAX_BOUNCES */
+    int ao_samples;          /* 1..ARBOR_MAX_AO_SAMPLES */
+    float ao_radius;         /* in units of the model's diagonal, > 0 */
+    arbor_vec3 background;   /* colour of misses, components in [0, 1] */
+    uint64_t seed;           /* frame seed for the per-pixel random numbers */
+    bool count_primary;      /* also report mean nodes and triangles per primary ray */
+} arbor_render_params;
+
+typedef struct {
+    int width, height;
+    uint8_t *rgb;              /* width * height * 3, rows top to bottom; owned by the frame */
+    bool cancelled;            /* some tiles never rendered */
+    double render_ms;          /* first tile started to last tile finished */
+    uint64_t rays;             /* every ray traced: primary, shadow, AO, reflection */
+    double mrays_per_s;
+    /* heat mode: per-pixel cost (nodes + triangle tests) statistics */
+    double heat_scale;         /* the cost shown as the top of the scale (99th percentile) */
+    double heat_max, heat_mean;
+    /* with count_primary (always in heat mode): per primary ray */
+    bool counted;
+    double mean_nodes, mean_tris;
+} arbor_frame_result;
+
+typedef struct arbor_frame arbor_frame;
+
+/* Called once on a pool worker when the frame is complete or cancelled;
+ * arbor_frame_result(f) is final from then on. May release f. */
+typedef void (*arbor_frame_done_fn)(arbor_frame *f, void *user);
+
+const char *arbor_render_mode_name(arbor_render_mode mode);
+bool arbor_render_mode_parse(const char *name, arbor_render_mode *mode);
+
+/* Defaults: the protocol view of the mesh at width x height, shaded, spp 1,
+ * 4 bounces, 8 AO samples of radius 0.1 d, dark grey background, seed 1. */
+void arbor_render_params_init(arbor_render_params *p, const arbor_mesh *m, int width, int height);
+/* Checks every field; the message names the field and its allowed range. */
+bool arbor_render_params_validate(const arbor_render_params *p, arbor_err *e);
+
+/* Starts rendering on the pool; done (may be NULL) is called on completion.
+ * NULL with e filled on invalid parameters or when out of memory. */
+arbor_frame *arbor_render_submit(arbor_pool *pool, const arbor_accel *a, const arbor_render_params *p,
+                                 arbor_frame_done_fn done, void *user, arbor_err *e);
+/* Stops the frame between tiles; its done reports cancelled. */
+void arbor_frame_cancel(arbor_frame *f);
+/* Blocks until the frame's done has returned; its result. */
+const arbor_frame_result *arbor_frame_wait(arbor_frame *f);
+/* The result; final only once done was called (or wait returned). */
+const arbor_frame_result *arbor_frame_result_of(const arbor_frame *f);
+void arbor_frame_release(arbor_frame *f);
+
+/* Submits and waits: the frame (release it) or NULL with e filled. */
+arbor_frame *arbor_render(arbor_pool *pool, const arbor_accel *a, const arbor_render_params *p, arbor_err *e);
+
+#endif

@@ -1,0 +1,177 @@
+/*
+ * embree_peer.c - Intel Embree 3 as the benchmark peer (see embree_peer.h).
+ * Without ARBOR_HAVE_EMBREE only the stubs at the end are compiled.
+ */
+#include "embree_peer.h"
+
+#ifdef ARBOR_HAVE_EMBREE
+
+#include <embree3/rtcore.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/sys.h"
+
+struct embree_peer {
+    RTCDevice device;
+    RTCScene scene;
+    arbor_err *err; /* where the device's error callback reports, during build only */
+};
+
+static void on_device_error(void *user, enum RTCError code, const char *msg)
+{
+    embree_peer *p = user;
+    if (p->err != NULL && p->err->status == ARBOR_OK)
+        arbor_fail(p->err, ARBOR_ERR_INVALID, "embree error %d: %s", (int)code, msg ? msg : "");
+}
+
+bool embree_peer_available(void)
+{
+    return true;
+}
+
+/* The mesh's vertices and triangles, copied into buffers Embree allocates
+ * (they are padded as Embree requires, which the mesh's arrays are not). */
+static bool add_mesh(embree_peer *p, const arbor_mesh *m, arbor_err *e)
+{
+    RTCGeometry g = rtcNewGeometry(p->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    float *verts = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                           m->nverts);
+    unsigned *tris = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned),
+                                             m->ntris);
+    if (verts == NULL || tris == NULL) {
+        rtcReleaseGeometry(g);
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "embree: cannot allocate the geometry buffers");
+    }
+    for (uint32_t i = 0; i < m->nverts; i++) {
+        verts[3 * i] = m->verts[i].x;
+        verts[3 * i + 1] = m->verts[i].y;
+        verts[3 * i + 2] = m->verts[i].z;
+    }
+    memcpy(tris, m->tri_verts, 3 * sizeof(unsigned) * (size_t)m->ntris);
+    rtcCommitGeometry(g);
+    rtcAttachGeometry(p->scene, g);
+    rtcReleaseGeometry(g);
+    return true;
+}
+
+embree_peer *embree_peer_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e)
+{
+    embree_peer *p = calloc(1, sizeof *p);
+    if (p == NULL) {
+        arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for the embree peer");
+        return NULL;
+    }
+    arbor_err local;
+    arbor_err_clear(&local);
+    p->err = &local;
+    char config[64] = "";
+    if (threads > 0)
+        snprintf(config, sizeof config, "threads=%d", threads);
+    p->device = rtcNewDevice(config);
+    if (p->device == NULL) {
+        free(p);
+        arbor_fail(e, ARBOR_ERR_INVALID, "embree: rtcNewDevice(\"%s\") failed", config);
+        return NULL;
+    }
+    rtcSetDeviceErrorFunction(p->device, on_device_error, p);
+    p->scene = rtcNewScene(p->device);
+    bool ok = p->scene != NULL && add_mesh(p, m, &local);
+    double t0 = arbor_now_ms();
+    if (ok)
+        rtcCommitScene(p->scene);
+    *commit_ms = arbor_now_ms() - t0;
+    p->err = NULL;
+    if (!ok || local.status != ARBOR_OK) {
+        if (local.status == ARBOR_OK)
+            arbor_fail(&local, ARBOR_ERR_INVALID, "embree: cannot create the scene");
+        if (e != NULL)
+            *e = local;
+        embree_peer_free(p);
+        return NULL;
+    }
+    return p;
+}
+
+void embree_peer_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)
+{
+    const embree_peer *p = peer;
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    uint64_t hits = 0;
+    double tsum = 0.0;
+    for (size_t i = 0; i < n; i++) {
+        const arbor_ray *r = &rays[i];
+        struct RTCRayHit rh;
+        rh.ray.org_x = r->o.x;
+        rh.ray.org_y = r->o.y;
+        rh.ray.org_z = r->o.z;
+        rh.ray.tnear = r->tmin;
+        rh.ray.dir_x = r->d.x;
+        rh.ray.dir_y = r->d.y;
+        rh.ray.dir_z = r->d.z;
+        rh.ray.time = 0.0f;
+        rh.ray.tfar = r->tmax;
+        rh.ray.mask = 0xffffffffu;
+        rh.ray.id = 0;
+        rh.ray.flags = 0;
+        if (any_hit) {
+            rtcOccluded1(p->scene, &ctx, &rh.ray);
+            /* Embree marks an occluded ray by setting tfar to -inf */
+            hits += rh.ray.tfar < 0.0f;
+        } else {
+            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+            rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+            rtcIntersect1(p->scene, &ctx, &rh);
+            if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) {
+                hits++;
+                tsum += rh.ray.tfar;
+            }
+        }
+    }
+    t->hits += hits;
+    t->tsum += tsum;
+}
+
+void embree_peer_free(embree_peer *p)
+{
+    if (p == NULL)
+        return;
+    if (p->scene != NULL)
+        rtcReleaseScene(p->scene);
+    rtcReleaseDevice(p->device);
+    free(p);
+}
+
+#else /* !ARBOR_HAVE_EMBREE */
+
+bool embree_peer_available(void)
+{
+    return false;
+}
+
+embree_peer *embree_peer_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e)
+{
+    (void)m;
+    (void)threads;
+    *commit_ms = 0.0;
+    arbor_fail(e, ARBOR_ERR_INVALID, "built without Embree; run `make bench-embree`");
+    return NULL;
+}
+
+void embree_peer_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)
+{
+    (void)peer;
+    (void)rays;
+    (void)n;
+    (void)any_hit;
+    (void)t;
+}
+
+void embree_peer_free(embree_peer *p)
+{
+    (void)p;
+}
+
+#endif

@@ -1,0 +1,541 @@
+/*
+ * render.c - frames as pool jobs of 32x32 tiles, the shading modes and
+ * anti-aliasing (see include/arbor/render.h for what each mode shows).
+ *
+ * A tile task writes only its own pixels and its own slot of `tiles`, so
+ * tasks share nothing mutable and need no lock; the totals are summed in
+ * tile order when the job is done, on one thread, which keeps them the same
+ * for any number of threads. Heat colours need the whole frame's cost
+ * distribution, so heat tiles store per-pixel costs and the colouring runs
+ * in the done step.
+ */
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/render.h"
+#include "arbor/sys.h"
+#include "sampling.h"
+
+#define AMBIENT 0.15f
+#define MIRROR_TINT_DEFAULT 0.9f
+#define GAMMA 2.2f
+#define EPS_FACTOR 1e-4f     /* PROTOCOL.md's offset of secondary origins, times d */
+#define HEAT_PERCENTILE 0.99
+#define HEAT_BINS 4096
+
+/* What one tile traced; written only by the tile's task. */
+typedef struct {
+    uint64_t rays, nodes, tris;
+} tile_tally;
+
+struct arbor_frame {
+    arbor_render_params params;
+    const arbor_accel *accel;
+    const arbor_mesh *mesh;
+    arbor_job *job;
+    arbor_frame_done_fn done;
+    void *user;
+
+    /* derived once at submission, read-only while rendering */
+    bool count;                 /* count nodes and triangles of primary rays */
+    float eps;                  /* secondary-ray offset */
+    float ao_length;            /* AO ray length */
+    arbor_vec3 light;
+    arbor_vec3 background_linear;
+    float depth_near, depth_far;
+    int tiles_x, tiles_y;
+
+    /* written by the tile tasks, each to its own pixels / slot */
+    uint8_t *rgb;
+    float *heat;                /* per-pixel cost, heat mode only */
+    tile_tally *tiles;
+
+    atomic_bool started;        /* set by the first tile task to run */
+    double start_ms;            /* written by that task; read in the done step */
+    arbor_frame_result result;  /* filled in the done step */
+};
+
+static const char *const mode_names[ARBOR_MODE_COUNT] = {"shaded", "normals", "depth", "ao", "heat"};
+
+const char *arbor_render_mode_name(arbor_render_mode mode)
+{
+    return (unsigned)mode < ARBOR_MODE_COUNT ? mode_names[mode] : "?";
+}
+
+bool arbor_render_mode_parse(const char *name, arbor_render_mode *mode)
+{
+    for (int i = 0; i < ARBOR_MODE_COUNT; i++)
+        if (strcmp(name, mode_names[i]) == 0) {
+            *mode = (arbor_render_mode)i;
+            return true;
+        }
+    return false;
+}
+
+void arbor_render_params_init(arbor_render_params *p, const arbor_mesh *m, int width, int height)
+{
+    memset(p, 0, sizeof *p);
+    arbor_camera_protocol(&p->camera, m->bounds, width, height);
+    p->mode = ARBOR_MODE_SHADED;
+    p->spp = 1;
+    p->max_bounces = 4;
+    p->ao_samples = 8;
+    p->ao_radius = 0.1f;
+    p->background = vec3(0.1f, 0.1f, 0.12f);
+    p->seed = 1;
+}
+
+static bool unit_interval(float v)
+{
+    return v >= 0.0f && v <= 1.0f;
+}
+
+bool arbor_render_params_validate(const arbor_render_params *p, arbor_err *e)
+{
+    const arbor_camera *c = &p->camera;
+    if (c->width < 1 || c->width > ARBOR_MAX_IMAGE_SIZE)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "width must be in 1..%d, not %d", ARBOR_MAX_IMAGE_SIZE, c->width);
+    if (c->height < 1 || c->height > ARBOR_MAX_IMAGE_SIZE)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "height must be in 1..%d, not %d", ARBOR_MAX_IMAGE_SIZE,
+                          c->height);
+    if ((unsigned)p->mode >= ARBOR_MODE_COUNT)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "unknown mode %d (shaded, normals, depth, ao, heat)", (int)p->mode);
+    if (p->spp < 1 || p->spp > ARBOR_MAX_SPP)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "spp must be in 1..%d, not %d", ARBOR_MAX_SPP, p->spp);
+    if (p->max_bounces < 0 || p->max_bounces > ARBOR_MAX_BOUNCES)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "bounces must be in 0..%d, not %d", ARBOR_MAX_BOUNCES,
+                          p->max_bounces);
+    if (p->ao_samples < 1 || p->ao_samples > ARBOR_MAX_AO_SAMPLES)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "ao samples must be in 1..%d, not %d", ARBOR_MAX_AO_SAMPLES,
+                          p->ao_samples);
+    if (!(p->ao_radius > 0.0f) || !isfinite(p->ao_radius))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "ao radius must be a positive number, not %g", (double)p->ao_radius);
+    if (!unit_interval(p->background.x) || !unit_interval(p->background.y) || !unit_interval(p->background.z))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "background components must be in 0..1");
+    if (!isfinite(c->tan_half_fov) || !(c->tan_half_fov > 0.0f))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "the camera's field of view must be in (0, 180) degrees");
+    return true;
+}
+
+/* ---- tracing, with the frame's ray and work counts ---- */
+
+static bool trace_primary(const arbor_frame *f, arbor_ray *r, arbor_hit *h, tile_tally *t)
+{
+    t->rays++;
+    if (!f->count)
+        return arbor_accel_intersect(f->accel, r, h);
+    arbor_trace_counts c = {0, 0};
+    bool hit = arbor_accel_intersect_counted(f->accel, r, h, &c);
+    t->nodes += c.nodes;
+    t->tris += c.tris;
+    return hit;
+}
+
+static bool trace_secondary(const arbor_frame *f, arbor_ray *r, arbor_hit *h, tile_tally *t)
+{
+    t->rays++;
+    return arbor_accel_intersect(f->accel, r, h);
+}
+
+static bool occluded(const arbor_frame *f, const arbor_ray *r, tile_tally *t)
+{
+    t->rays++;
+    return arbor_accel_occluded(f->accel, r);
+}
+
+/* ---- the modes: each returns one sample's colour ---- */
+
+static arbor_vec3 grey(float v)
+{
+    return vec3(v, v, v);
+}
+
+static const arbor_material *material_of(const arbor_frame *f, uint32_t tri)
+{
+    return &f->mesh->mats[f->mesh->tri_mat[tri]];
+}
+
+/* Kd-weighted light arriving at s (linear): ambient plus the unshadowed
+ * Lambert term of the point light. */
+static arbor_vec3 lambert(const arbor_frame *f, const sample_surface *s, const arbor_material *mat, tile_tally *t)
+{
+    arbor_vec3 to_light = vec3_sub(f->light, s->origin);
+    float cosine = vec3_dot(s->n, vec3_normalize(to_light));
+    float direct = 0.0f;
+    if (cosine > 0.0f) {
+        /* t in (0, 1) along the unnormalised vector: the light itself is not an occluder */
+        arbor_ray shadow = {s->origin, 0.0f, to_light, 1.0f};
+        if (!occluded(f, &shadow, t))
+            direct = cosine;
+    }
+    return vec3_scale(mat->kd, AMBIENT + (1.0f - AMBIENT) * direct);
+}
+
+static arbor_vec3 mirror_tint(const arbor_material *mat)
+{
+    bool black = mat->ks.x <= 0.0f && mat->ks.y <= 0.0f && mat->ks.z <= 0.0f;
+    return black ? grey(MIRROR_TINT_DEFAULT) : mat->ks;
+}
+
+/* Follows mirror bounces iteratively; `throughput` is the product of the
+ * tints of the mirrors met so far. Linear radiance. */
+static arbor_vec3 shade_shaded(const arbor_frame *f, arbor_ray r, tile_tally *t)
+{
+    arbor_vec3 throughput = grey(1.0f);
+    for (int bounce = 0;; bounce++) {
+        arbor_hit h;
+        bool hit = bounce == 0 ? trace_primary(f, &r, &h, t) : trace_secondary(f, &r, &h, t);
+        if (!hit)
+            return vec3_mul(throughput, f->background_linear);
+        const arbor_material *mat = material_of(f, h.tri);
+        sample_surface s = sample_surface_at(f->mesh, &r, &h, f->eps);
+        if (arbor_material_is_mirror(mat) && bounce < f->params.max_bounces) {
+            throughput = vec3_mul(throughput, mirror_tint(mat));
+            arbor_vec3 d = vec3_sub(r.d, vec3_scale(s.n, 2.0f * vec3_dot(r.d, s.n)));
+            arbor_ray next = {s.origin, 0.0f, d, INFINITY};
+            r = next;
+            continue;
+        }
+        return vec3_mul(throughput, vec3_add(mat->ke, lambert(f, &s, mat, t)));
+    }
+}
+
+static arbor_vec3 shade_normals(const arbor_frame *f, arbor_ray r, tile_tally *t)
+{
+    arbor_hit h;
+    if (!trace_primary(f, &r, &h, t))
+        return f->params.background;
+    sample_surface s = sample_surface_at(f->mesh, &r, &h, f->eps);
+    return vec3_add(vec3_scale(s.n, 0.5f), grey(0.5f));
+}
+
+static arbor_vec3 shade_depth(const arbor_frame *f, arbor_ray r, tile_tally *t)
+{
+    arbor_hit h;
+    if (!trace_primary(f, &r, &h, t))
+        return f->params.background;
+    float v = 1.0f - (h.t - f->depth_near) / (f->depth_far - f->depth_near);
+    return grey(fminf(1.0f, fmaxf(0.0f, v)));
+}
+
+static arbor_vec3 shade_ao(const arbor_frame *f, arbor_ray r, sample_rng *g, tile_tally *t)
+{
+    arbor_hit h;
+    if (!trace_primary(f, &r, &h, t))
+        return f->params.background;
+    sample_surface s = sample_surface_at(f->mesh, &r, &h, f->eps);
+    int open = 0;
+    for (int i = 0; i < f->params.ao_samples; i++) {
+        float u1 = sample_float(g), u2 = sample_float(g);
+        arbor_ray probe = {s.origin, 0.0f, sample_cosine_dir(s.n, u1, u2), f->ao_length};
+        open += !occluded(f, &probe, t);
+    }
+    return grey((float)open / (float)f->params.ao_samples);
+}
+
+/* Heat colours are assigned in the done step; here only the counts matter. */
+static arbor_vec3 shade_heat(const arbor_frame *f, arbor_ray r, tile_tally *t)
+{
+    arbor_hit h;
+    trace_primary(f, &r, &h, t);
+    return grey(0.0f);
+}
+
+static arbor_vec3 shade_sample(const arbor_frame *f, arbor_ray r, sample_rng *g, tile_tally *t)
+{
+    switch (f->params.mode) {
+    case ARBOR_MODE_SHADED: return shade_shaded(f, r, t);
+    case ARBOR_MODE_NORMALS: return shade_normals(f, r, t);
+    case ARBOR_MODE_DEPTH: return shade_depth(f, r, t);
+    case ARBOR_MODE_AO: return shade_ao(f, r, g, t);
+    case ARBOR_MODE_HEAT: return shade_heat(f, r, t);
+    case ARBOR_MODE_COUNT: break;
+    }
+    return grey(0.0f);
+}
+
+/* ---- pixels and tiles ---- */
+
+static int square_root_if_square(int n)
+{
+    int k = (int)sqrtf((float)n + 0.5f);
+    return k * k == n ? k : 0;
+}
+
+/* The Latin hypercube's row permutation for a pixel (Fisher-Yates). */
+static void row_permutation(uint8_t *perm, int n, sample_rng *g)
+{
+    for (int i = 0; i < n; i++)
+        perm[i] = (uint8_t)i;
+    for (int i = n - 1; i > 0; i--) {
+        int j = (int)(sample_next(g) % (uint64_t)(i + 1));
+        uint8_t tmp = perm[i];
+        perm[i] = perm[j];
+        perm[j] = tmp;
+    }
+}
+
+/* Sample s's position inside the pixel, in [0, 1)^2 (see render.h). */
+static void sample_offset(int s, int spp, int grid, const uint8_t *perm, sample_rng *g, float *dx, float *dy)
+{
+    if (spp == 1) {
+        *dx = *dy = 0.5f;
+        return;
+    }
+    float u = sample_float(g), v = sample_float(g);
+    if (grid > 0) {
+        *dx = ((float)(s % grid) + u) / (float)grid;
+        *dy = ((float)(s / grid) + v) / (float)grid;
+    } else {
+        *dx = ((float)s + u) / (float)spp;
+        *dy = ((float)perm[s] + v) / (float)spp;
+    }
+}
+
+static uint8_t to_byte(float v)
+{
+    return (uint8_t)(fminf(1.0f, fmaxf(0.0f, v)) * 255.0f + 0.5f);
+}
+
+static void store_rgb(uint8_t *px, arbor_vec3 c)
+{
+    px[0] = to_byte(c.x);
+    px[1] = to_byte(c.y);
+    px[2] = to_byte(c.z);
+}
+
+static void render_pixel(arbor_frame *f, int x, int y, tile_tally *t)
+{
+    const arbor_render_params *p = &f->params;
+    int spp = p->spp, grid = square_root_if_square(spp);
+    uint8_t perm[ARBOR_MAX_SPP];
+    if (spp > 1 && grid == 0) {
+        sample_rng pg = sample_rng_for(p->seed, (uint64_t)x, (uint64_t)y, UINT64_MAX);
+        row_permutation(perm, spp, &pg);
+    }
+    uint64_t cost_before = t->nodes + t->tris;
+    arbor_vec3 sum = grey(0.0f);
+    for (int s = 0; s < spp; s++) {
+        sample_rng g = sample_rng_for(p->seed, (uint64_t)x, (uint64_t)y, (uint64_t)s);
+        float dx, dy;
+        sample_offset(s, spp, grid, perm, &g, &dx, &dy);
+        arbor_ray r = arbor_camera_ray(&p->camera, (float)x + dx, (float)y + dy);
+        sum = vec3_add(sum, shade_sample(f, r, &g, t));
+    }
+    size_t index = (size_t)y * (size_t)p->camera.width + (size_t)x;
+    if (p->mode == ARBOR_MODE_HEAT) {
+        f->heat[index] = (float)(t->nodes + t->tris - cost_before) / (float)spp;
+        return;
+    }
+    arbor_vec3 c = vec3_scale(sum, 1.0f / (float)spp);
+    if (p->mode == ARBOR_MODE_SHADED) {
+        c = vec3(powf(fmaxf(c.x, 0.0f), 1.0f / GAMMA), powf(fmaxf(c.y, 0.0f), 1.0f / GAMMA),
+                 powf(fmaxf(c.z, 0.0f), 1.0f / GAMMA));
+    }
+    store_rgb(f->rgb + 3 * index, c);
+}
+
+static void render_tile(void *ctx, uint32_t task)
+{
+    arbor_frame *f = ctx;
+    if (!atomic_exchange(&f->started, true))
+        f->start_ms = arbor_now_ms();
+    int x0 = (int)(task % (uint32_t)f->tiles_x) * ARBOR_TILE_SIZE;
+    int y0 = (int)(task / (uint32_t)f->tiles_x) * ARBOR_TILE_SIZE;
+    int x1 = x0 + ARBOR_TILE_SIZE, y1 = y0 + ARBOR_TILE_SIZE;
+    if (x1 > f->params.camera.width) x1 = f->params.camera.width;
+    if (y1 > f->params.camera.height) y1 = f->params.camera.height;
+    tile_tally t = {0, 0, 0};
+    for (int y = y0; y < y1; y++)
+        for (int x = x0; x < x1; x++)
+            render_pixel(f, x, y, &t);
+    f->tiles[task] = t;
+}
+
+/* ---- the done step ---- */
+
+/* Blue, cyan, green, yellow, red, white at v = 0, 0.2, ..., 1. */
+static arbor_vec3 heat_colour(float v)
+{
+    static const float stops[6][3] = {{0, 0, 1}, {0, 1, 1}, {0, 1, 0}, {1, 1, 0}, {1, 0, 0}, {1, 1, 1}};
+    v = fminf(1.0f, fmaxf(0.0f, v)) * 5.0f;
+    int i = v >= 5.0f ? 4 : (int)v;
+    float w = v - (float)i;
+    return vec3(stops[i][0] + w * (stops[i + 1][0] - stops[i][0]), stops[i][1] + w * (stops[i + 1][1] - stops[i][1]),
+                stops[i][2] + w * (stops[i + 1][2] - stops[i][2]));
+}
+
+/* Max, mean and the 99th percentile (upper edge of the histogram bin that
+ * reaches it: HEAT_BINS bins over [0, max]), then the colours. */
+static void colour_heat(arbor_frame *f)
+{
+    size_t n = (size_t)f->params.camera.width * (size_t)f->params.camera.height;
+    double max = 0.0, sum = 0.0;
+    for (size_t i = 0; i < n; i++) {
+        sum += f->heat[i];
+        if (f->heat[i] > max)
+            max = f->heat[i];
+    }
+    double scale = max;
+    uint32_t bins[HEAT_BINS] = {0};
+    if (max > 0.0) {
+        for (size_t i = 0; i < n; i++) {
+            int b = (int)(f->heat[i] / max * (HEAT_BINS - 1));
+            bins[b]++;
+        }
+        size_t want = (size_t)ceil(HEAT_PERCENTILE * (double)n), seen = 0;
+        for (int b = 0; b < HEAT_BINS; b++) {
+            seen += bins[b];
+            if (seen >= want) {
+                scale = max * (double)(b + 1) / (HEAT_BINS - 1);
+                break;
+            }
+        }
+        if (scale > max)
+            scale = max;
+    }
+    f->result.heat_max = max;
+    f->result.heat_mean = sum / (double)n;
+    f->result.heat_scale = scale > 0.0 ? scale : 1.0;
+    for (size_t i = 0; i < n; i++)
+        store_rgb(f->rgb + 3 * i, heat_colour((float)(f->heat[i] / f->result.heat_scale)));
+}
+
+static void frame_done(void *ctx, bool cancelled)
+{
+    arbor_frame *f = ctx;
+    double end_ms = arbor_now_ms();
+    arbor_frame_result *r = &f->result;
+    uint64_t nodes = 0, tris = 0;
+    uint32_t ntiles = (uint32_t)(f->tiles_x * f->tiles_y);
+    for (uint32_t i = 0; i < ntiles; i++) {
+        r->rays += f->tiles[i].rays;
+        nodes += f->tiles[i].nodes;
+        tris += f->tiles[i].tris;
+    }
+    r->cancelled = cancelled;
+    r->render_ms = atomic_load(&f->started) ? end_ms - f->start_ms : 0.0;
+    r->mrays_per_s = r->render_ms > 0.0 ? (double)r->rays / (r->render_ms * 1e3) : 0.0;
+    if (f->count) {
+        double primary = (double)f->params.camera.width * f->params.camera.height * f->params.spp;
+        r->counted = true;
+        r->mean_nodes = (double)nodes / primary;
+        r->mean_tris = (double)tris / primary;
+    }
+    if (f->params.mode == ARBOR_MODE_HEAT && !cancelled)
+        colour_heat(f);
+    if (f->done != NULL)
+        f->done(f, f->user);
+}
+
+static void frame_free(void *ctx)
+{
+    arbor_frame *f = ctx;
+    free(f->rgb);
+    free(f->heat);
+    free(f->tiles);
+    free(f);
+}
+
+/* Distances from p to the nearest point of box b (0 inside) and to its
+ * farthest corner: the depth range any hit can have. */
+static void box_distances(arbor_aabb b, arbor_vec3 p, float *near, float *far)
+{
+    arbor_vec3 nearest = vec3_min(vec3_max(p, b.lo), b.hi);
+    arbor_vec3 farthest = vec3(p.x < 0.5f * (b.lo.x + b.hi.x) ? b.hi.x : b.lo.x,
+                               p.y < 0.5f * (b.lo.y + b.hi.y) ? b.hi.y : b.lo.y,
+                               p.z < 0.5f * (b.lo.z + b.hi.z) ? b.hi.z : b.lo.z);
+    *near = vec3_length(vec3_sub(nearest, p));
+    *far = vec3_length(vec3_sub(farthest, p));
+}
+
+/* The values every pixel uses, derived once from the parameters. */
+static void frame_setup(arbor_frame *f)
+{
+    const arbor_render_params *p = &f->params;
+    const arbor_camera *c = &p->camera;
+    float d = sample_model_size(f->mesh);
+    f->count = p->count_primary || p->mode == ARBOR_MODE_HEAT;
+    f->eps = EPS_FACTOR * d;
+    f->ao_length = p->ao_radius * d;
+    f->light = vec3_add(c->eye, vec3_scale(c->up, 0.5f * d));
+    f->background_linear = vec3(powf(p->background.x, GAMMA), powf(p->background.y, GAMMA),
+                                powf(p->background.z, GAMMA));
+    box_distances(f->mesh->bounds, c->eye, &f->depth_near, &f->depth_far);
+    if (!(f->depth_far > f->depth_near))
+        f->depth_far = f->depth_near + 1.0f;
+    f->tiles_x = (c->width + ARBOR_TILE_SIZE - 1) / ARBOR_TILE_SIZE;
+    f->tiles_y = (c->height + ARBOR_TILE_SIZE - 1) / ARBOR_TILE_SIZE;
+    f->result.width = c->width;
+    f->result.height = c->height;
+}
+
+arbor_frame *arbor_render_submit(arbor_pool *pool, const arbor_accel *a, const arbor_render_params *p,
+                                 arbor_frame_done_fn done, void *user, arbor_err *e)
+{
+    if (!arbor_render_params_validate(p, e))
+        return NULL;
+    arbor_frame *f = calloc(1, sizeof *f);
+    if (f == NULL) {
+        arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for a frame");
+        return NULL;
+    }
+    f->params = *p;
+    f->accel = a;
+    f->mesh = arbor_accel_mesh(a);
+    f->done = done;
+    f->user = user;
+    atomic_init(&f->started, false);
+    frame_setup(f);
+    size_t pixels = (size_t)p->camera.width * (size_t)p->camera.height;
+    f->rgb = calloc(pixels, 3);
+    f->tiles = calloc((size_t)(f->tiles_x * f->tiles_y), sizeof *f->tiles);
+    f->heat = p->mode == ARBOR_MODE_HEAT ? calloc(pixels, sizeof *f->heat) : NULL;
+    if (f->rgb == NULL || f->tiles == NULL || (p->mode == ARBOR_MODE_HEAT && f->heat == NULL)) {
+        frame_free(f);
+        arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for a %dx%d frame", p->camera.width, p->camera.height);
+        return NULL;
+    }
+    f->result.rgb = f->rgb;
+    f->job = arbor_job_new((uint32_t)(f->tiles_x * f->tiles_y), render_tile, frame_done, frame_free, f, e);
+    if (f->job == NULL) {
+        frame_free(f);
+        return NULL;
+    }
+    if (!arbor_pool_submit(pool, f->job, e)) {
+        arbor_job_release(f->job);
+        return NULL;
+    }
+    return f;
+}
+
+void arbor_frame_cancel(arbor_frame *f)
+{
+    arbor_job_cancel(f->job);
+}
+
+const arbor_frame_result *arbor_frame_wait(arbor_frame *f)
+{
+    arbor_job_wait(f->job);
+    return &f->result;
+}
+
+const arbor_frame_result *arbor_frame_result_of(const arbor_frame *f)
+{
+    return &f->result;
+}
+
+void arbor_frame_release(arbor_frame *f)
+{
+    if (f != NULL)
+        arbor_job_release(f->job);
+}
+
+arbor_frame *arbor_render(arbor_pool *pool, const arbor_accel *a, const arbor_render_params *p, arbor_err *e)
+{
+    arbor_frame *f = arbor_render_submit(pool, a, p, NULL, NULL, e);
+    if (f != NULL)
+        arbor_frame_wait(f);
+    return f;
+}

@@ -1,0 +1,568 @@
+/*
+ * test_render.c - the tracer: known images of a quad that fills the view,
+ * PROTOCOL.md's primary hits against brute force, PROTOCOL.md's secondary
+ * sets, frames identical on 1 and 4 threads, frames in flight together,
+ * every mode through PNG and back, cancelling, and parameter checks.
+ */
+#include <math.h>
+#include <png.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/brute.h"
+#include "arbor/load.h"
+#include "arbor/png.h"
+#include "arbor/raysets.h"
+#include "arbor/render.h"
+#include "support.h"
+#include "unity.h"
+
+static arbor_pool *pool1, *pool4;
+
+void setUp(void) {}
+void tearDown(void) {}
+
+static arbor_accel *build(const arbor_mesh *m, arbor_accel_kind kind)
+{
+    arbor_build_opts o;
+    arbor_build_opts_init(&o, kind, ARBOR_BUILD_SAH);
+    arbor_err e;
+    arbor_accel *a = arbor_accel_build(m, &o, &e);
+    TEST_ASSERT_NOT_NULL_MESSAGE(a, e.msg);
+    return a;
+}
+
+/* A 20 x 20 square in the plane z = 0 centred on the origin, with material
+ * mat: 0 the default, 1 a second one for the test to set. */
+static void make_quad(arbor_mesh *m, uint32_t mat)
+{
+    arbor_mesh_init(m);
+    arbor_mesh_add_vert(m, vec3(-10, -10, 0), NULL);
+    arbor_mesh_add_vert(m, vec3(10, -10, 0), NULL);
+    arbor_mesh_add_vert(m, vec3(10, 10, 0), NULL);
+    arbor_mesh_add_vert(m, vec3(-10, 10, 0), NULL);
+    uint32_t index;
+    arbor_mesh_add_material(m, "default", &index, NULL);
+    arbor_mesh_add_material(m, "test", &index, NULL);
+    arbor_mesh_add_tri(m, 0, 1, 2, mat, NULL);
+    arbor_mesh_add_tri(m, 0, 2, 3, mat, NULL);
+    TEST_ASSERT_TRUE(arbor_mesh_finish(m, NULL));
+}
+
+/* Looking straight at the quad from z = 5: the view (about +-2.7 x +-2.1 at
+ * z = 0) lies well inside it, so every pixel hits. */
+static void quad_params(arbor_render_params *p, const arbor_mesh *m, arbor_render_mode mode)
+{
+    arbor_render_params_init(p, m, 64, 48);
+    arbor_camera_look_at(&p->camera, vec3(0, 0, 5), vec3(0, 0, 0), vec3(0, 1, 0), 45.0f, 64, 48);
+    p->mode = mode;
+}
+
+static arbor_frame *render_ok(arbor_pool *pool, const arbor_accel *a, const arbor_render_params *p)
+{
+    arbor_err e;
+    arbor_frame *f = arbor_render(pool, a, p, &e);
+    TEST_ASSERT_NOT_NULL_MESSAGE(f, e.msg);
+    TEST_ASSERT_FALSE(arbor_frame_result_of(f)->cancelled);
+    return f;
+}
+
+static void assert_every_pixel(const arbor_frame_result *r, int red, int green, int blue)
+{
+    for (int i = 0; i < r->width * r->height; i++) {
+        TEST_ASSERT_EQUAL_UINT8(red, r->rgb[3 * i]);
+        TEST_ASSERT_EQUAL_UINT8(green, r->rgb[3 * i + 1]);
+        TEST_ASSERT_EQUAL_UINT8(blue, r->rgb[3 * i + 2]);
+    }
+}
+
+static void test_quad_normals_fill_the_view(void)
+{
+    arbor_mesh m;
+    make_quad(&m, 0);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p;
+    quad_params(&p, &m, ARBOR_MODE_NORMALS);
+    p.spp = 4;
+    arbor_frame *f = render_ok(pool4, a, &p);
+    const arbor_frame_result *r = arbor_frame_result_of(f);
+    /* n = (0, 0, 1) faces the viewer: (0.5, 0.5, 1) */
+    assert_every_pixel(r, 128, 128, 255);
+    TEST_ASSERT_EQUAL_UINT64(64 * 48 * 4, r->rays);
+    arbor_frame_release(f);
+    /* seen from behind, the normal turned toward the viewer is (0, 0, -1): (0.5, 0.5, 0) */
+    arbor_camera_look_at(&p.camera, vec3(0, 0, -5), vec3(0, 0, 0), vec3(0, 1, 0), 45.0f, 64, 48);
+    f = render_ok(pool4, a, &p);
+    assert_every_pixel(arbor_frame_result_of(f), 128, 128, 0);
+    arbor_frame_release(f);
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+static uint8_t expected_byte(float v)
+{
+    return (uint8_t)(fminf(1.0f, fmaxf(0.0f, v)) * 255.0f + 0.5f);
+}
+
+/* The pixel at the image centre sees the origin; the light is at
+ * eye + 0.5 d up = (0, 0.5 d, 5), d the quad's diagonal. */
+static void test_quad_shaded_centre_is_lambert(void)
+{
+    arbor_mesh m;
+    make_quad(&m, 1);
+    m.mats[1].kd = vec3(0.8f, 0.4f, 0.2f);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p;
+    quad_params(&p, &m, ARBOR_MODE_SHADED);
+    p.camera.width = p.camera.height = 65; /* odd, so one pixel centre is the image centre */
+    arbor_frame *f = render_ok(pool4, a, &p);
+    const uint8_t *px = arbor_frame_result_of(f)->rgb + 3 * (32 * 65 + 32);
+    float d = sqrtf(800.0f);
+    arbor_vec3 light = vec3(0.0f, 0.5f * d, 5.0f);
+    float cosine = light.z / vec3_length(light);
+    float kd[3] = {0.8f, 0.4f, 0.2f};
+    for (int c = 0; c < 3; c++) {
+        float linear = kd[c] * (0.15f + 0.85f * cosine);
+        TEST_ASSERT_INT_WITHIN(1, expected_byte(powf(linear, 1.0f / 2.2f)), px[c]);
+    }
+    arbor_frame_release(f);
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+/* A mirror facing the camera sends every ray back past the eye into the
+ * background, tinted 0.9 (Ks is black). */
+static void test_mirror_reflects_the_background(void)
+{
+    arbor_mesh m;
+    make_quad(&m, 1);
+    m.mats[1].illum = 3;
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p;
+    quad_params(&p, &m, ARBOR_MODE_SHADED);
+    p.background = vec3(0.2f, 0.6f, 1.0f);
+    arbor_frame *f = render_ok(pool4, a, &p);
+    const arbor_frame_result *r = arbor_frame_result_of(f);
+    float tint = powf(0.9f, 1.0f / 2.2f);
+    for (int i = 0; i < r->width * r->height; i++) {
+        TEST_ASSERT_INT_WITHIN(1, expected_byte(0.2f * tint), r->rgb[3 * i]);
+        TEST_ASSERT_INT_WITHIN(1, expected_byte(0.6f * tint), r->rgb[3 * i + 1]);
+        TEST_ASSERT_INT_WITHIN(1, expected_byte(1.0f * tint), r->rgb[3 * i + 2]);
+    }
+    TEST_ASSERT_EQUAL_UINT64(2 * 64 * 48, r->rays); /* primary + one reflection each */
+    arbor_frame_release(f);
+    /* with no bounces allowed, the mirror is shaded as a diffuse surface instead */
+    p.max_bounces = 0;
+    f = render_ok(pool4, a, &p);
+    TEST_ASSERT_TRUE(arbor_frame_result_of(f)->rgb[1] > 128);
+    arbor_frame_release(f);
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+/* Nothing lies above a lone plane: every AO ray escapes (white), and the
+ * ray count is primary + ao_samples per pixel. */
+static void test_ao_of_an_open_plane_is_white(void)
+{
+    arbor_mesh m;
+    make_quad(&m, 0);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p;
+    quad_params(&p, &m, ARBOR_MODE_AO);
+    p.ao_samples = 5;
+    arbor_frame *f = render_ok(pool4, a, &p);
+    const arbor_frame_result *r = arbor_frame_result_of(f);
+    assert_every_pixel(r, 255, 255, 255);
+    TEST_ASSERT_EQUAL_UINT64(64 * 48 * 6, r->rays);
+    arbor_frame_release(f);
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+static void load(const char *file, arbor_mesh *m)
+{
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(arbor_load_model(test_shared_model(file), m, &e), e.msg);
+}
+
+/* Hits of the rays with each tree kind (sah): found[k][i], t[k][i]. */
+static void trace_each_kind(const arbor_mesh *m, const arbor_ray *rays, size_t n, bool *found[], float *t[])
+{
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
+        arbor_accel *a = build(m, (arbor_accel_kind)k);
+        for (size_t i = 0; i < n; i++) {
+            arbor_ray r = rays[i];
+            arbor_hit h;
+            found[k][i] = arbor_accel_intersect(a, &r, &h);
+            t[k][i] = found[k][i] ? h.t : 0.0f;
+        }
+        arbor_accel_free(a);
+    }
+}
+
+/* PROTOCOL.md's primary set on galleon: bvh sah and kd sah agree on all of
+ * it (hit count exactly, sum of t to 1e-5, through arbor_trace_set), and
+ * with brute force ray by ray on every 5th pixel in x and y (brute force on
+ * all 786k rays would take most of a minute). */
+static void test_protocol_primary_hits_agree_with_brute_force(void)
+{
+    arbor_mesh m;
+    load("galleon.obj", &m);
+    arbor_raysets sets;
+    arbor_err e;
+    TEST_ASSERT_TRUE(arbor_raysets_primary(&m, &sets, &e));
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(1024 * 768), (uint64_t)(sets.nprimary));
+    arbor_tally tally[ARBOR_ACCEL_KIND_COUNT];
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
+        arbor_accel *a = build(&m, (arbor_accel_kind)k);
+        TEST_ASSERT_TRUE(arbor_trace_set(arbor_accel_kernel, a, sets.primary, sets.nprimary, false, 2, &tally[k], &e));
+        arbor_accel_free(a);
+    }
+    TEST_ASSERT_TRUE(tally[0].hits > 100000);
+    TEST_ASSERT_EQUAL_UINT64(tally[0].hits, tally[1].hits);
+    TEST_ASSERT_TRUE(test_close((float)tally[0].tsum, (float)tally[1].tsum, 1e-5f));
+
+    size_t n = 0;
+    arbor_ray *rays = malloc(sets.nprimary * sizeof *rays);
+    for (int y = 0; y < 768; y += 5)
+        for (int x = 0; x < 1024; x += 5)
+            rays[n++] = sets.primary[(size_t)y * 1024 + (size_t)x];
+    arbor_hit *brute = malloc(n * sizeof *brute);
+    bool *brute_found = malloc(n * sizeof *brute_found);
+    arbor_brute_intersect_many(&m, rays, n, brute, brute_found, 2);
+    bool *found[ARBOR_ACCEL_KIND_COUNT];
+    float *t[ARBOR_ACCEL_KIND_COUNT];
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
+        found[k] = malloc(n * sizeof *found[k]);
+        t[k] = malloc(n * sizeof *t[k]);
+    }
+    trace_each_kind(&m, rays, n, found, t);
+    size_t hits = 0;
+    for (size_t i = 0; i < n; i++) {
+        hits += brute_found[i];
+        for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
+            TEST_ASSERT_EQUAL_INT_MESSAGE(brute_found[i], found[k][i], arbor_accel_kind_name((arbor_accel_kind)k));
+            if (brute_found[i]) {
+                TEST_ASSERT_TRUE_MESSAGE(test_close(brute[i].t, t[k][i], 1e-6f),
+                                         arbor_accel_kind_name((arbor_accel_kind)k));
+            }
+        }
+    }
+    TEST_ASSERT_TRUE(hits > 4000);
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
+        free(found[k]);
+        free(t[k]);
+    }
+    free(brute);
+    free(brute_found);
+    free(rays);
+    arbor_raysets_free(&sets);
+    arbor_mesh_free(&m);
+}
+
+/* The secondary sets against their definition: one diffuse and one shadow
+ * ray per primary hit, from p + 1e-4 d n; diffuse directions in n's
+ * hemisphere and cosine-distributed (mean cos = 2/3); shadow rays end at
+ * the light at t = 1. */
+static void test_protocol_secondary_sets(void)
+{
+    arbor_mesh m;
+    load("galleon.obj", &m);
+    arbor_raysets sets;
+    arbor_err e;
+    TEST_ASSERT_TRUE(arbor_raysets_primary(&m, &sets, &e));
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_hit *hits = malloc(sets.nprimary * sizeof *hits);
+    bool *found = malloc(sets.nprimary * sizeof *found);
+    TEST_ASSERT_TRUE(arbor_accel_trace_hits(a, sets.primary, sets.nprimary, 2, hits, found, &e));
+    TEST_ASSERT_TRUE(arbor_raysets_secondary(&m, &sets, hits, found, 5, &e));
+    size_t nhits = 0;
+    for (size_t i = 0; i < sets.nprimary; i++)
+        nhits += found[i];
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(nhits), (uint64_t)(sets.ndiffuse));
+    TEST_ASSERT_EQUAL_UINT64((uint64_t)(nhits), (uint64_t)(sets.nshadow));
+    float d = vec3_length(aabb_extent(m.bounds));
+    TEST_ASSERT_FLOAT_WITHIN(1e-5f * d, d, sets.size);
+    double cos_sum = 0.0;
+    size_t k = 0;
+    for (size_t i = 0; i < sets.nprimary; i++) {
+        if (!found[i])
+            continue;
+        const arbor_ray *pr = &sets.primary[i], *dr = &sets.diffuse[k], *sr = &sets.shadow[k];
+        k++;
+        arbor_vec3 p = vec3_add(pr->o, vec3_scale(pr->d, hits[i].t));
+        arbor_vec3 n = vec3_normalize(arbor_mesh_tri_normal(&m, hits[i].tri));
+        if (vec3_dot(n, pr->d) > 0.0f)
+            n = vec3_scale(n, -1.0f);
+        arbor_vec3 lift = vec3_sub(dr->o, p);
+        TEST_ASSERT_FLOAT_WITHIN(1e-6f * d, 1e-4f * d, vec3_dot(lift, n));
+        TEST_ASSERT_FLOAT_WITHIN(1e-4f, 1.0f, vec3_length(dr->d));
+        float c = vec3_dot(dr->d, n);
+        TEST_ASSERT_TRUE(c >= -1e-6f);
+        cos_sum += c;
+        TEST_ASSERT_EQUAL_FLOAT(1.0f, sr->tmax);
+        arbor_vec3 end = vec3_add(sr->o, sr->d);
+        TEST_ASSERT_FLOAT_WITHIN(1e-4f * d, 0.0f, vec3_length(vec3_sub(end, sets.light)));
+    }
+    TEST_ASSERT_FLOAT_WITHIN(0.01, 2.0 / 3.0, cos_sum / (double)nhits);
+    free(hits);
+    free(found);
+    arbor_accel_free(a);
+    arbor_raysets_free(&sets);
+    arbor_mesh_free(&m);
+}
+
+/* A soup of random triangles, every fifth a mirror and every third red, so
+ * every code path of every mode is taken. */
+static void make_soup(arbor_mesh *m)
+{
+    test_random_soup(m, 3000, 11);
+    uint32_t mirror, red;
+    arbor_mesh_add_material(m, "mirror", &mirror, NULL);
+    arbor_mesh_add_material(m, "red", &red, NULL);
+    m->mats[mirror].illum = 3;
+    m->mats[red].kd = vec3(0.9f, 0.1f, 0.1f);
+    for (uint32_t t = 0; t < m->ntris; t++)
+        m->tri_mat[t] = t % 5 == 0 ? mirror : t % 3 == 0 ? red : 0;
+}
+
+static void soup_params(arbor_render_params *p, const arbor_mesh *m, arbor_render_mode mode, int spp)
+{
+    arbor_render_params_init(p, m, 150, 110); /* not a multiple of the tile size */
+    p->mode = mode;
+    p->spp = spp;
+    p->seed = 99;
+}
+
+static void test_one_thread_and_four_threads_give_the_same_bytes(void)
+{
+    arbor_mesh m;
+    make_soup(&m);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    for (int mode = 0; mode < ARBOR_MODE_COUNT; mode++) {
+        const int spps[2] = {4, 3}; /* the grid and the Latin hypercube */
+        for (int k = 0; k < 2; k++) {
+            arbor_render_params p;
+            soup_params(&p, &m, (arbor_render_mode)mode, spps[k]);
+            arbor_frame *f1 = render_ok(pool1, a, &p), *f4 = render_ok(pool4, a, &p);
+            const arbor_frame_result *r1 = arbor_frame_result_of(f1), *r4 = arbor_frame_result_of(f4);
+            TEST_ASSERT_EQUAL_MEMORY_MESSAGE(r1->rgb, r4->rgb, 150 * 110 * 3, arbor_render_mode_name(p.mode));
+            TEST_ASSERT_EQUAL_UINT64(r1->rays, r4->rays);
+            TEST_ASSERT_EQUAL_DOUBLE(r1->heat_scale, r4->heat_scale);
+            arbor_frame_release(f1);
+            arbor_frame_release(f4);
+        }
+    }
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+/* A different seed moves the samples: the anti-aliased image changes. */
+static void test_seed_changes_the_samples(void)
+{
+    arbor_mesh m;
+    make_soup(&m);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p;
+    soup_params(&p, &m, ARBOR_MODE_NORMALS, 4);
+    arbor_frame *f1 = render_ok(pool4, a, &p);
+    p.seed = 100;
+    arbor_frame *f2 = render_ok(pool4, a, &p);
+    TEST_ASSERT_TRUE(memcmp(arbor_frame_result_of(f1)->rgb, arbor_frame_result_of(f2)->rgb, 150 * 110 * 3) != 0);
+    arbor_frame_release(f1);
+    arbor_frame_release(f2);
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+static void test_heat_scale_and_counts(void)
+{
+    arbor_mesh m;
+    make_soup(&m);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p;
+    soup_params(&p, &m, ARBOR_MODE_HEAT, 1);
+    arbor_frame *f = render_ok(pool4, a, &p);
+    const arbor_frame_result *r = arbor_frame_result_of(f);
+    TEST_ASSERT_TRUE(r->counted);
+    TEST_ASSERT_TRUE(r->mean_nodes >= 1.0);
+    TEST_ASSERT_TRUE(r->heat_mean > 0.0);
+    TEST_ASSERT_TRUE(r->heat_scale > r->heat_mean);
+    TEST_ASSERT_TRUE(r->heat_scale <= r->heat_max);
+    /* the mean cost per pixel is the mean per primary ray at spp 1 */
+    TEST_ASSERT_FLOAT_WITHIN(1e-3 * r->heat_mean, r->mean_nodes + r->mean_tris, r->heat_mean);
+    arbor_frame_release(f);
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+typedef struct {
+    atomic_int calls;
+    atomic_bool cancelled;
+} done_record;
+
+static void record_done(arbor_frame *f, void *user)
+{
+    done_record *d = user;
+    atomic_store(&d->cancelled, arbor_frame_result_of(f)->cancelled);
+    atomic_fetch_add(&d->calls, 1);
+}
+
+/* Frames of every mode submitted together on a 2-thread pool: each
+ * completes, calls back once, and equals the same frame rendered alone. */
+static void test_frames_in_flight_together(void)
+{
+    arbor_mesh m;
+    make_soup(&m);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_err e;
+    arbor_pool *pool2 = arbor_pool_create(2, &e);
+    arbor_frame *frames[ARBOR_MODE_COUNT];
+    done_record records[ARBOR_MODE_COUNT];
+    memset(records, 0, sizeof records);
+    for (int mode = 0; mode < ARBOR_MODE_COUNT; mode++) {
+        arbor_render_params p;
+        soup_params(&p, &m, (arbor_render_mode)mode, 2);
+        frames[mode] = arbor_render_submit(pool2, a, &p, record_done, &records[mode], &e);
+        TEST_ASSERT_NOT_NULL_MESSAGE(frames[mode], e.msg);
+    }
+    for (int mode = 0; mode < ARBOR_MODE_COUNT; mode++) {
+        const arbor_frame_result *r = arbor_frame_wait(frames[mode]);
+        TEST_ASSERT_EQUAL_INT(1, atomic_load(&records[mode].calls));
+        TEST_ASSERT_FALSE(atomic_load(&records[mode].cancelled));
+        arbor_render_params p;
+        soup_params(&p, &m, (arbor_render_mode)mode, 2);
+        arbor_frame *alone = render_ok(pool1, a, &p);
+        TEST_ASSERT_EQUAL_MEMORY(arbor_frame_result_of(alone)->rgb, r->rgb, 150 * 110 * 3);
+        arbor_frame_release(alone);
+        arbor_frame_release(frames[mode]);
+    }
+    arbor_pool_destroy(pool2);
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+static void test_every_mode_round_trips_through_png(void)
+{
+    arbor_mesh m;
+    make_soup(&m);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    for (int mode = 0; mode < ARBOR_MODE_COUNT; mode++) {
+        arbor_render_params p;
+        soup_params(&p, &m, (arbor_render_mode)mode, 1);
+        arbor_frame *f = render_ok(pool4, a, &p);
+        const arbor_frame_result *r = arbor_frame_result_of(f);
+        uint8_t *png;
+        size_t len;
+        arbor_err e;
+        TEST_ASSERT_TRUE(arbor_png_encode(r->rgb, r->width, r->height, &png, &len, &e));
+        png_image img;
+        memset(&img, 0, sizeof img);
+        img.version = PNG_IMAGE_VERSION;
+        TEST_ASSERT_TRUE(png_image_begin_read_from_memory(&img, png, len));
+        TEST_ASSERT_EQUAL_UINT32(150, img.width);
+        TEST_ASSERT_EQUAL_UINT32(110, img.height);
+        img.format = PNG_FORMAT_RGB;
+        uint8_t *back = malloc(PNG_IMAGE_SIZE(img));
+        TEST_ASSERT_TRUE(png_image_finish_read(&img, NULL, back, 0, NULL));
+        TEST_ASSERT_EQUAL_MEMORY_MESSAGE(r->rgb, back, 150 * 110 * 3, arbor_render_mode_name(p.mode));
+        free(back);
+        free(png);
+        arbor_frame_release(f);
+    }
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+/* A 2048 x 2048 AO frame at 64 spp would take minutes on one thread;
+ * cancelled at once it stops after at most the tile that was running. */
+static void test_cancel_stops_a_big_frame_early(void)
+{
+    arbor_mesh m;
+    make_soup(&m);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p;
+    arbor_render_params_init(&p, &m, 2048, 2048);
+    p.mode = ARBOR_MODE_AO;
+    p.spp = 64;
+    done_record rec;
+    memset(&rec, 0, sizeof rec);
+    arbor_err e;
+    arbor_frame *f = arbor_render_submit(pool1, a, &p, record_done, &rec, &e);
+    TEST_ASSERT_NOT_NULL(f);
+    arbor_frame_cancel(f);
+    const arbor_frame_result *r = arbor_frame_wait(f);
+    TEST_ASSERT_TRUE(r->cancelled);
+    TEST_ASSERT_TRUE(atomic_load(&rec.cancelled));
+    TEST_ASSERT_EQUAL_INT(1, atomic_load(&rec.calls));
+    /* at most one 32 x 32 tile's primary rays (plus its AO rays) were traced */
+    TEST_ASSERT_TRUE(r->rays <= (uint64_t)32 * 32 * 64 * (1 + 8));
+    arbor_frame_release(f);
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+static void assert_rejected(arbor_render_params *p, const char *word)
+{
+    arbor_err e;
+    arbor_err_clear(&e);
+    TEST_ASSERT_FALSE(arbor_render_params_validate(p, &e));
+    TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(e.msg, word), e.msg);
+}
+
+static void test_bad_parameters_are_rejected(void)
+{
+    arbor_mesh m;
+    make_quad(&m, 0);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p, good;
+    quad_params(&good, &m, ARBOR_MODE_SHADED);
+    arbor_err e;
+    TEST_ASSERT_TRUE(arbor_render_params_validate(&good, &e));
+    p = good, p.spp = 0, assert_rejected(&p, "spp");
+    p = good, p.spp = 65, assert_rejected(&p, "spp");
+    p = good, p.camera.width = 0, assert_rejected(&p, "width");
+    p = good, p.camera.height = 8193, assert_rejected(&p, "height");
+    p = good, p.mode = ARBOR_MODE_COUNT, assert_rejected(&p, "mode");
+    p = good, p.ao_samples = 0, assert_rejected(&p, "ao samples");
+    p = good, p.max_bounces = -1, assert_rejected(&p, "bounces");
+    p = good, p.background.x = 2.0f, assert_rejected(&p, "background");
+    arbor_render_mode mode;
+    TEST_ASSERT_FALSE(arbor_render_mode_parse("phong", &mode));
+    TEST_ASSERT_TRUE(arbor_render_mode_parse("heat", &mode));
+    TEST_ASSERT_EQUAL_INT(ARBOR_MODE_HEAT, mode);
+    /* submit checks too, and starts nothing */
+    p = good, p.spp = 65;
+    TEST_ASSERT_NULL(arbor_render_submit(pool1, a, &p, NULL, NULL, &e));
+    TEST_ASSERT_NOT_NULL(strstr(e.msg, "spp"));
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+int main(void)
+{
+    arbor_err e;
+    pool1 = arbor_pool_create(1, &e);
+    pool4 = arbor_pool_create(4, &e);
+    UNITY_BEGIN();
+    RUN_TEST(test_quad_normals_fill_the_view);
+    RUN_TEST(test_quad_shaded_centre_is_lambert);
+    RUN_TEST(test_mirror_reflects_the_background);
+    RUN_TEST(test_ao_of_an_open_plane_is_white);
+    RUN_TEST(test_protocol_primary_hits_agree_with_brute_force);
+    RUN_TEST(test_protocol_secondary_sets);
+    RUN_TEST(test_one_thread_and_four_threads_give_the_same_bytes);
+    RUN_TEST(test_seed_changes_the_samples);
+    RUN_TEST(test_heat_scale_and_counts);
+    RUN_TEST(test_frames_in_flight_together);
+    RUN_TEST(test_every_mode_round_trips_through_png);
+    RUN_TEST(test_cancel_stops_a_big_frame_early);
+    RUN_TEST(test_bad_parameters_are_rejected);
+    int failures = UNITY_END();
+    arbor_pool_destroy(pool1);
+    arbor_pool_destroy(pool4);
+    return failures;
+}
