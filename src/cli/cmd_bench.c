@@ -384,6 +384,16 @@ static const char *const json_keys[] = {"model", "triangles", "accel", "builder"
                                         "primary_tsum"};
 #define NKEYS (sizeof json_keys / sizeof json_keys[0])
 
+/* Prints o on one line and frees it. */
+static void print_json_object(cJSON *o)
+{
+    char *text = cJSON_PrintUnformatted(o);
+    if (text != NULL)
+        puts(text);
+    free(text);
+    cJSON_Delete(o);
+}
+
 static void add_number(cJSON *o, const char *key, double v)
 {
     if (isnan(v))
@@ -419,11 +429,7 @@ static void print_json_row(const bench_row *r, bool with_ratios)
         snprintf(key, sizeof key, "%s_ratio", set_names[s]);
         cJSON_AddNumberToObject(o, key, r->ratio[s]);
     }
-    char *text = cJSON_PrintUnformatted(o);
-    if (text != NULL)
-        puts(text);
-    free(text);
-    cJSON_Delete(o);
+    print_json_object(o);
 }
 
 /* Prints one cell of a table row: csv cells are comma-separated, md cells
@@ -524,6 +530,17 @@ static char *read_model_text(const char *path, size_t *len, arbor_err *e)
     return text;
 }
 
+static void print_json_parse(const char *model, size_t bytes, uint32_t triangles, double ms, double mbps)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "model", model);
+    cJSON_AddNumberToObject(o, "bytes", (double)bytes);
+    cJSON_AddNumberToObject(o, "triangles", triangles);
+    cJSON_AddNumberToObject(o, "parse_ms", ms);
+    cJSON_AddNumberToObject(o, "mb_per_s", mbps);
+    print_json_object(o);
+}
+
 static int run_parse(const bench_args *a)
 {
     bool csv = a->format == FORMAT_CSV;
@@ -547,8 +564,7 @@ static int run_parse(const bench_args *a)
         double mbps = ms > 0.0 ? (double)p.len / 1e6 / (ms / 1e3) : 0.0;
         const char *name = base_name(a->models[i]);
         if (a->format == FORMAT_JSON)
-            printf("{\"model\":\"%s\",\"bytes\":%zu,\"triangles\":%u,\"parse_ms\":%.3f,\"mb_per_s\":%.1f}\n", name,
-                   p.len, p.triangles, ms, mbps);
+            print_json_parse(name, p.len, p.triangles, ms, mbps);
         else
             printf(csv ? "%s,%zu,%u,%.3f,%.1f\n" : "| %s | %zu | %u | %.3f | %.1f |\n", name, p.len, p.triangles,
                    ms, mbps);
