@@ -76,6 +76,12 @@ bool text_word_is(const char *w, size_t n, const char *s);
 /* Fails with ARBOR_ERR_PARSE and "NAME:LINE: message". */
 bool text_fail(const text_cursor *c, arbor_err *e, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 
+/* A word's length for "%.*s" in messages: at most 60 characters. */
+static inline int text_shown(size_t n)
+{
+    return n > 60 ? 60 : (int)n;
+}
+
 /* Copies the word at p (up to a blank or newline) into buf for a message,
  * shortened with "..." and with unprintable bytes shown as '?'. */
 void text_excerpt(char *buf, size_t size, const char *p, const char *end);

@@ -170,7 +170,7 @@ static bool read_statement(mtl_reader *r, const char *w, size_t n, arbor_err *e)
     if (!is_value_statement(w, n))
         return true; /* Ka, Tr, texture maps, ...: nothing arbor renders */
     if (r->current < 0)
-        return text_fail(&r->c, e, "%.*s before any newmtl", (int)n, w);
+        return text_fail(&r->c, e, "%.*s before any newmtl", text_shown(n), w);
     arbor_material *mat = &r->table->m->mats[r->current];
     if (text_word_is(w, n, "Kd"))
         return read_colour(r, "Kd", &mat->kd, e);

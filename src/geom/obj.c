@@ -39,7 +39,7 @@ typedef struct {
 /* One index of a face vertex as written. */
 typedef struct {
     const char *digits;
-    int ndigits;
+    size_t ndigits;
     int64_t value;
     bool present;
 } obj_index;
@@ -57,7 +57,7 @@ static const char *split_face_vertex(const text_cursor *c, const char *p, obj_in
             if (q == NULL)
                 return NULL;
             idx[k].digits = p;
-            idx[k].ndigits = (int)(q - p);
+            idx[k].ndigits = (size_t)(q - p);
             idx[k].present = true;
             p = q;
         }
@@ -83,9 +83,9 @@ static bool resolve_index(obj_reader *r, const obj_index *idx, uint32_t count, c
     }
     if (idx->value == 0)
         return text_fail(&r->c, e, "%s index 0 is invalid (OBJ indices start at 1)", what);
-    int shown = idx->ndigits > 40 ? 40 : idx->ndigits;
+    int shown = text_shown(idx->ndigits);
     return text_fail(&r->c, e, "%s index %.*s%s out of range (%u %s)", what, shown, idx->digits,
-                     shown < idx->ndigits ? "..." : "", count, plural);
+                     (size_t)shown < idx->ndigits ? "..." : "", count, plural);
 }
 
 /* Reads one face vertex; only the position index is kept, the others are
@@ -204,7 +204,7 @@ static bool seen_library(obj_reader *r, const char *w, size_t n)
             return true;
     if (r->nlibs == OBJ_MAX_LIBRARIES) {
         arbor_mesh_warn(r->m, "%s:%u: more than %d material libraries; '%.*s' ignored", r->c.name, r->c.line,
-                        OBJ_MAX_LIBRARIES, (int)n, w);
+                        OBJ_MAX_LIBRARIES, text_shown(n), w);
         return true;
     }
     r->libs[r->nlibs].name = w;
@@ -220,15 +220,15 @@ static bool load_library(obj_reader *r, const char *w, size_t n, arbor_err *e)
 {
     if (!path_stays_inside(w, n)) {
         arbor_mesh_warn(r->m, "%s:%u: material library '%.*s' is outside the model's folder; not loaded", r->c.name,
-                        r->c.line, (int)n, w);
+                        r->c.line, text_shown(n), w);
         return true;
     }
     char path[4096];
-    int len = snprintf(path, sizeof path, "%s/%.*s", r->dir, (int)n, w);
-    if (len < 0 || (size_t)len >= sizeof path) {
+    if (strlen(r->dir) + 1 + n >= sizeof path) {
         arbor_mesh_warn(r->m, "%s:%u: material library path too long; not loaded", r->c.name, r->c.line);
         return true;
     }
+    snprintf(path, sizeof path, "%s/%.*s", r->dir, (int)n, w);
     arbor_err err;
     if (mtl_load(&r->mats, path, &err))
         return true;

@@ -110,9 +110,9 @@ static bool read_format(ply_reader *r, arbor_err *e)
     else if (text_word_is(w, n, "binary_big_endian"))
         r->format = PLY_BINARY_BE;
     else
-        return text_fail(&r->c, e, "unknown format '%.*s'", n > 40 ? 40 : (int)n, w);
+        return text_fail(&r->c, e, "unknown format '%.*s'", text_shown(n), w);
     if (!text_word_is(version, nversion, "1.0"))
-        return text_fail(&r->c, e, "unsupported PLY version '%.*s' (1.0 expected)", nversion > 40 ? 40 : (int)nversion,
+        return text_fail(&r->c, e, "unsupported PLY version '%.*s' (1.0 expected)", text_shown(nversion),
                          version);
     r->has_format = true;
     return true;
@@ -128,7 +128,7 @@ static bool read_element(ply_reader *r, arbor_err *e)
     size_t n = text_word(&r->c, &w);
     if (n == 0)
         return text_fail(&r->c, e, "element without a name");
-    snprintf(el->name, sizeof el->name, "%.*s", (int)n, w);
+    snprintf(el->name, sizeof el->name, "%.*s", text_shown(n), w);
     el->kind = text_word_is(w, n, "vertex") ? ELEMENT_VERTEX : text_word_is(w, n, "face") ? ELEMENT_FACE : ELEMENT_OTHER;
     for (uint32_t i = 0; i < r->nelems; i++)
         if (el->kind != ELEMENT_OTHER && r->elems[i].kind == el->kind)
@@ -156,9 +156,9 @@ static bool assign_role(ply_reader *r, ply_element *el, ply_property *prop, cons
         if (el->props[i].role == role)
             role = ROLE_SKIP;
     if (role == ROLE_INDICES && !prop->is_list)
-        return text_fail(&r->c, e, "face property '%.*s' is not a list", (int)n, w);
+        return text_fail(&r->c, e, "face property '%.*s' is not a list", text_shown(n), w);
     if (role != ROLE_SKIP && role != ROLE_INDICES && prop->is_list)
-        return text_fail(&r->c, e, "vertex property '%.*s' is a list", (int)n, w);
+        return text_fail(&r->c, e, "vertex property '%.*s' is a list", text_shown(n), w);
     prop->role = role;
     return true;
 }
@@ -193,30 +193,33 @@ static bool read_property(ply_reader *r, arbor_err *e)
     return true;
 }
 
+static bool require_role(const ply_reader *r, const ply_element *el, ply_role role, arbor_err *e)
+{
+    static const char *const names[] = {[ROLE_X] = "x", [ROLE_Y] = "y", [ROLE_Z] = "z",
+                                        [ROLE_INDICES] = "vertex_indices"};
+    for (uint32_t k = 0; k < el->nprops; k++)
+        if (el->props[k].role == role)
+            return true;
+    return arbor_fail(e, ARBOR_ERR_PARSE, "%s: element '%s' has no '%s' property", r->c.name, el->name, names[role]);
+}
+
 /* The vertex element must carry x, y and z; the face element its index list. */
 static bool check_roles(const ply_reader *r, arbor_err *e)
 {
-    static const char *const role_names[] = {"", "x", "y", "z", "vertex_indices"};
     for (uint32_t i = 0; i < r->nelems; i++) {
         const ply_element *el = &r->elems[i];
-        if (el->kind == ELEMENT_OTHER)
-            continue;
-        for (int role = el->kind == ELEMENT_VERTEX ? ROLE_X : ROLE_INDICES;
-             role <= (el->kind == ELEMENT_VERTEX ? ROLE_Z : ROLE_INDICES); role++) {
-            bool found = false;
-            for (uint32_t k = 0; k < el->nprops; k++)
-                found |= el->props[k].role == (ply_role)role;
-            if (!found)
-                return arbor_fail(e, ARBOR_ERR_PARSE, "%s: element '%s' has no '%s' property", r->c.name, el->name,
-                                  role_names[role]);
-        }
+        if (el->kind == ELEMENT_VERTEX
+            && !(require_role(r, el, ROLE_X, e) && require_role(r, el, ROLE_Y, e) && require_role(r, el, ROLE_Z, e)))
+            return false;
+        if (el->kind == ELEMENT_FACE && !require_role(r, el, ROLE_INDICES, e))
+            return false;
     }
     return true;
 }
 
 static bool read_header_line(ply_reader *r, const char *w, size_t n, bool *done, arbor_err *e)
 {
-    if (text_word_is(w, n, "comment") || text_word_is(w, n, "obj_info"))
+    if (n == 0 || text_word_is(w, n, "comment") || text_word_is(w, n, "obj_info"))
         return true;
     bool ok;
     if (text_word_is(w, n, "format"))
@@ -227,8 +230,6 @@ static bool read_header_line(ply_reader *r, const char *w, size_t n, bool *done,
         ok = read_property(r, e);
     else if (text_word_is(w, n, "end_header"))
         ok = *done = true;
-    else if (n == 0)
-        return text_fail(&r->c, e, "blank line in header");
     else {
         char word[40];
         text_excerpt(word, sizeof word, w, r->c.end);
@@ -363,24 +364,15 @@ static bool skip_property(ply_reader *r, const ply_property *prop, arbor_err *e)
 
 /* ---- elements ---- */
 
-static bool read_vertex(ply_reader *r, const ply_element *el, arbor_err *e)
+static bool read_coordinate(ply_reader *r, const ply_property *prop, float *out, arbor_err *e)
 {
-    float xyz[3] = {0, 0, 0};
-    for (uint32_t k = 0; k < el->nprops; k++) {
-        const ply_property *prop = &el->props[k];
-        double v;
-        if (prop->role == ROLE_SKIP) {
-            if (!skip_property(r, prop, e))
-                return false;
-            continue;
-        }
-        if (!read_value(r, prop->type, &v, e))
-            return false;
-        xyz[prop->role - ROLE_X] = (float)v;
-        if (!isfinite(xyz[prop->role - ROLE_X]))
-            return body_fail(r, e, "%s vertex coordinate", isnan(v) ? "NaN" : "infinite");
-    }
-    return arbor_mesh_add_vert(r->m, vec3(xyz[0], xyz[1], xyz[2]), e);
+    double v;
+    if (!read_value(r, prop->type, &v, e))
+        return false;
+    *out = (float)v;
+    if (!isfinite(*out))
+        return body_fail(r, e, "%s vertex coordinate", isnan(v) ? "NaN" : "infinite");
+    return true;
 }
 
 static bool read_vertex_index(ply_reader *r, const ply_property *prop, uint32_t *out, arbor_err *e)
@@ -417,22 +409,21 @@ static bool read_polygon(ply_reader *r, const ply_property *prop, arbor_err *e)
     return true;
 }
 
-static bool read_face(ply_reader *r, const ply_element *el, arbor_err *e)
+/* One item of any element: the properties with a role (x, y, z in the
+ * vertex element, the index list in the face element) are used, the others
+ * read past. */
+static bool read_item(ply_reader *r, const ply_element *el, arbor_err *e)
 {
+    float xyz[3] = {0, 0, 0};
     for (uint32_t k = 0; k < el->nprops; k++) {
         const ply_property *prop = &el->props[k];
-        if (!(prop->role == ROLE_INDICES ? read_polygon(r, prop, e) : skip_property(r, prop, e)))
+        bool ok = prop->role == ROLE_SKIP      ? skip_property(r, prop, e)
+                  : prop->role == ROLE_INDICES ? read_polygon(r, prop, e)
+                                               : read_coordinate(r, prop, &xyz[prop->role - ROLE_X], e);
+        if (!ok)
             return false;
     }
-    return true;
-}
-
-static bool skip_item(ply_reader *r, const ply_element *el, arbor_err *e)
-{
-    for (uint32_t k = 0; k < el->nprops; k++)
-        if (!skip_property(r, &el->props[k], e))
-            return false;
-    return true;
+    return el->kind != ELEMENT_VERTEX || arbor_mesh_add_vert(r->m, vec3(xyz[0], xyz[1], xyz[2]), e);
 }
 
 static bool read_body(ply_reader *r, arbor_err *e)
@@ -442,10 +433,7 @@ static bool read_body(ply_reader *r, arbor_err *e)
         r->elem = el;
         /* an element without properties has nothing to read, however many items */
         for (r->item = 0; el->nprops > 0 && r->item < el->count; r->item++) {
-            bool ok = el->kind == ELEMENT_VERTEX ? read_vertex(r, el, e)
-                      : el->kind == ELEMENT_FACE ? read_face(r, el, e)
-                                                 : skip_item(r, el, e);
-            if (!ok)
+            if (!read_item(r, el, e))
                 return false;
         }
     }

@@ -180,8 +180,10 @@ void text_excerpt(char *buf, size_t size, const char *p, const char *end)
         unsigned char ch = (unsigned char)*p++;
         buf[n++] = ch >= 0x20 && ch < 0x7f ? (char)ch : '?';
     }
-    if (p < end && !text_is_blank(*p) && *p != '\n')
-        memcpy(buf + n, "...", 3), n += 3;
+    if (p < end && !text_is_blank(*p) && *p != '\n') {
+        memcpy(buf + n, "...", 3);
+        n += 3;
+    }
     buf[n] = '\0';
 }
 
@@ -257,9 +259,10 @@ static float parse_slow(const char *p, const char *end)
 {
     char buf[SLOW_DIGITS + 32];
     size_t n = 0;
+    if (*p == '-')
+        buf[n++] = '-';
     if (*p == '+' || *p == '-')
-        if (*p++ == '-')
-            buf[n++] = '-';
+        p++;
     int64_t exp10 = 0;
     int kept = 0;
     bool frac = false, rest_nonzero = false;
@@ -294,6 +297,17 @@ static float parse_slow(const char *p, const char *end)
     return strtof(buf, NULL);
 }
 
+/* Appends a decimal digit to the mantissa, unless it has 19 significant
+ * digits already (leading zeros do not count). */
+static inline bool take_digit(uint64_t *mant, int *ndigits, char digit)
+{
+    if (*ndigits == 19)
+        return false;
+    *mant = *mant * 10 + (uint64_t)(digit - '0');
+    *ndigits += *mant != 0;
+    return true;
+}
+
 const char *arbor_parse_float(const char *p, const char *end, float *out)
 {
     const char *start = p;
@@ -303,30 +317,19 @@ const char *arbor_parse_float(const char *p, const char *end, float *out)
     if (p < end && !is_digit(*p) && *p != '.')
         return parse_special(p, end, neg, out);
 
-    /* The first 19 significant digits go into mant (they fit in 64 bits);
-     * exp10 scales them; `inexact` notes nonzero digits beyond them. */
+    /* The significant digits go into mant with exp10 scaling them. Past 19
+     * of them mant would overflow, and past 16 it may exceed 2^53 anyway,
+     * so such numbers are left to the slow path. */
     uint64_t mant = 0;
     int ndigits = 0;
     int64_t exp10 = 0;
-    bool any = false, inexact = false;
-    for (; p < end && is_digit(*p); p++, any = true) {
-        if (ndigits < 19) {
-            mant = mant * 10 + (uint64_t)(*p - '0');
-            ndigits += mant != 0;
-        } else {
-            exp10++;
-            inexact |= *p != '0';
-        }
-    }
+    bool any = false, too_long = false;
+    for (; p < end && is_digit(*p); p++, any = true)
+        too_long |= !take_digit(&mant, &ndigits, *p);
     if (p < end && *p == '.') {
         for (p++; p < end && is_digit(*p); p++, any = true) {
-            if (ndigits < 19) {
-                mant = mant * 10 + (uint64_t)(*p - '0');
-                ndigits += mant != 0;
-                exp10--;
-            } else {
-                inexact |= *p != '0';
-            }
+            too_long |= !take_digit(&mant, &ndigits, *p);
+            exp10--;
         }
     }
     if (!any)
@@ -347,7 +350,7 @@ const char *arbor_parse_float(const char *p, const char *end, float *out)
     /* Clinger's fast path: mant and 10^|exp10| are exact doubles, so one
      * multiply or divide rounds correctly to double; the rounding to float
      * then matches strtof unless the double sits on a float midpoint. */
-    if (!inexact && mant <= (1ull << 53) && exp10 >= -22 && exp10 <= 22) {
+    if (!too_long && mant <= (1ull << 53) && exp10 >= -22 && exp10 <= 22) {
         double v = (double)mant;
         v = exp10 < 0 ? v / exact_pow10[-exp10] : v * exact_pow10[exp10];
         if (v >= FLT_MIN && !is_float_midpoint(v)) {

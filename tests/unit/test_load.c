@@ -891,9 +891,26 @@ static void test_parse_float_edge_cases(void)
         "7.00649232162408535461864791644958065640130970938257885878534141944895541342930300743319094181060791015625e-46",
         "7.00649232162408535461864791644958065640130970938257885878534141944895541342930300743319094181060791015626e-46",
         "340282356779733661637539395458142568448", "340282356779733661637539395458142568447",
+        /* short decimals whose double is exactly a float midpoint although
+         * they are not: rounding through double alone would go wrong */
+        "5.027412844356149e-04", "8.812020346522331e-02", "2.35276494640857e-03", "3.040467482060194e-02",
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++)
         assert_parses_like_strtof(cases[i]);
+
+    /* the float midpoint 1 + 2^-24 followed by 300 zeros, then a 1 far past
+     * any digit the parser keeps: it must still round up */
+    char past[400];
+    int n = snprintf(past, sizeof past, "1.000000059604644775390625");
+    memset(past + n, '0', 300);
+    strcpy(past + n + 300, "1");
+    assert_parses_like_strtof(past);
+    past[n + 300] = '\0';
+    assert_parses_like_strtof(past);
+    /* 250 integer digits brought back into range by the exponent */
+    memset(past, '3', 250);
+    strcpy(past + 250, "e-240");
+    assert_parses_like_strtof(past);
 }
 
 static void test_parse_float_random_decimals(void)
