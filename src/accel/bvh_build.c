@@ -53,6 +53,8 @@
  * core busy (a few threads per core), no more. */
 #define BVH_FORK_MIN_TRIS 8192
 #define BVH_FORK_EXTRA_LEVELS 2
+/* Meshes this large also split the linear passes over all triangles. */
+#define BVH_PARALLEL_PASS_TRIS 65536
 
 /* A box as the builder keeps it: four lanes per corner, the fourth always 0,
  * so that growing a box is one 4-wide min and max that the compiler can
@@ -475,22 +477,53 @@ void bvh_tree_free(bvh_tree *t)
     free(t);
 }
 
+/* A linear pass over mesh triangles [b, e) (precomputing boxes, or copying
+ * vertices into leaf order), which large meshes split between two threads. */
+typedef struct {
+    const arbor_mesh *m;
+    build_box *tri_box;
+    float *centroid;
+    bvh_tree *tree;
+    uint32_t b, e;
+} tri_pass;
+
 /* Each triangle's box and centroid, once for the whole build. */
-static void precompute_triangles(const arbor_mesh *m, build_box *tri_box, float *centroid, uint32_t *idx)
+static void precompute_triangles(void *arg)
 {
-    for (uint32_t t = 0; t < m->ntris; t++) {
+    const tri_pass *p = arg;
+    for (uint32_t t = p->b; t < p->e; t++) {
         arbor_vec3 v[3];
-        arbor_mesh_tri(m, t, &v[0], &v[1], &v[2]);
-        build_box *box = &tri_box[t];
+        arbor_mesh_tri(p->m, t, &v[0], &v[1], &v[2]);
+        build_box *box = &p->tri_box[t];
         box_empty(box);
         for (int k = 0; k < 3; k++) {
-            const float p[4] = {v[k].x, v[k].y, v[k].z, 0.0f};
-            box_add_point(box, p);
+            const float q[4] = {v[k].x, v[k].y, v[k].z, 0.0f};
+            box_add_point(box, q);
         }
         for (int a = 0; a < 4; a++)
-            centroid[4 * (size_t)t + a] = 0.5f * (box->lo[a] + box->hi[a]);
-        idx[t] = t;
+            p->centroid[4 * (size_t)t + a] = 0.5f * (box->lo[a] + box->hi[a]);
+        p->tree->tri_index[t] = t;
     }
+}
+
+/* The vertices of the triangles in leaf order, for the traversal. */
+static void copy_leaf_vertices(void *arg)
+{
+    const tri_pass *p = arg;
+    arbor_vec3 *v = p->tree->tri_verts;
+    for (uint32_t i = p->b; i < p->e; i++)
+        arbor_mesh_tri(p->m, p->tree->tri_index[i], &v[3 * (size_t)i], &v[3 * (size_t)i + 1], &v[3 * (size_t)i + 2]);
+}
+
+/* Runs pass over all triangles, in two halves on two threads when parallel. */
+static void tri_pass_run(void (*pass)(void *), tri_pass whole, bool parallel)
+{
+    tri_pass low = whole, high = whole;
+    low.e = high.b = whole.e / 2;
+    if (parallel)
+        arbor_fork_join(pass, &low, pass, &high, true);
+    else
+        pass(&whole);
 }
 
 static void builder_init(bvh_builder *B, const arbor_build_opts *o)
@@ -544,7 +577,9 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
     tree->tri_verts = malloc(3 * (size_t)n * sizeof *tree->tri_verts);
     if (tri_box == NULL || centroid == NULL || scratch == NULL || tree->tri_index == NULL || tree->tri_verts == NULL)
         goto nomem;
-    precompute_triangles(m, tri_box, centroid, tree->tri_index);
+    bool parallel = B.fork_depth > 0 && n >= BVH_PARALLEL_PASS_TRIS;
+    tri_pass pass = {m, tri_box, centroid, tree, 0, n};
+    tri_pass_run(precompute_triangles, pass, parallel);
     B.tri_box = tri_box;
     B.centroid = centroid;
     B.idx = tree->tri_index;
@@ -554,9 +589,7 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
     tree->nodes = nodes_shrink(scratch, tree->nnodes);
     if (tree->nodes == NULL)
         goto nomem;
-    for (uint32_t i = 0; i < n; i++)
-        arbor_mesh_tri(m, tree->tri_index[i], &tree->tri_verts[3 * (size_t)i], &tree->tri_verts[3 * (size_t)i + 1],
-                       &tree->tri_verts[3 * (size_t)i + 2]);
+    tri_pass_run(copy_leaf_vertices, pass, parallel);
     tally_to_stats(&tally, tree, aabb_area(bvh_node_box(&tree->nodes[0])), stats);
     free(tri_box);
     free(centroid);

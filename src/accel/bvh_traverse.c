@@ -42,19 +42,33 @@ static inline void bvh_ray_setup(bvh_ray *q, const arbor_ray *r)
     q->tmin = r->tmin;
 }
 
+/* One slab: the distances to the near and far plane of axis k. */
+static inline void bvh_slab(const float *bounds, const bvh_ray *q, int k, float *t_near, float *t_far)
+{
+    *t_near = (bounds[q->near[k]] - q->org[k]) * q->inv[k];
+    *t_far = (bounds[q->far[k]] - q->org[k]) * q->inv[k];
+}
+
+/* The larger and smaller of a distance and a bound, keeping the bound when
+ * the distance is NaN (the comparison is false). */
+static inline float bvh_raise(float t, float bound) { return t > bound ? t : bound; }
+static inline float bvh_lower(float t, float bound) { return t < bound ? t : bound; }
+
 /* Where the ray enters the node's box within [tmin, tmax], or INFINITY if it
  * does not. With a zero direction component, inv is +-inf and a plane through
- * the origin gives 0 * inf = NaN: the comparisons are ordered so that a NaN
- * distance keeps the interval as it was (the ray runs inside that plane). */
+ * the origin gives 0 * inf = NaN: bvh_raise and bvh_lower then keep the
+ * interval as it was (the ray runs inside that plane). The exit distance is
+ * scaled once after the minimum, which scaling by a positive factor commutes
+ * with. Written out per axis: this is the traversal's inner loop. */
 static inline float bvh_box_entry(const bvh_node *n, const bvh_ray *q, float tmax)
 {
-    float t0 = q->tmin, t1 = tmax;
-    for (int k = 0; k < 3; k++) {
-        float tn = (n->bounds[q->near[k]] - q->org[k]) * q->inv[k];
-        float tf = (n->bounds[q->far[k]] - q->org[k]) * q->inv[k] * BVH_EXIT_SCALE;
-        t0 = tn > t0 ? tn : t0;
-        t1 = tf < t1 ? tf : t1;
-    }
+    float nx, fx, ny, fy, nz, fz;
+    bvh_slab(n->bounds, q, 0, &nx, &fx);
+    bvh_slab(n->bounds, q, 1, &ny, &fy);
+    bvh_slab(n->bounds, q, 2, &nz, &fz);
+    float t0 = bvh_raise(nz, bvh_raise(ny, bvh_raise(nx, q->tmin)));
+    float t1 = bvh_lower(fz, bvh_lower(fy, bvh_lower(fx, INFINITY))) * BVH_EXIT_SCALE;
+    t1 = bvh_lower(t1, tmax);
     return t0 <= t1 ? t0 : INFINITY;
 }
 
@@ -89,19 +103,16 @@ static inline __attribute__((always_inline)) bool bvh_traverse(const bvh_tree *t
     for (;;) {
         const bvh_node *n = &nodes[ni];
         if (n->count == 0) {
-            uint32_t near = ni + 1, far = n->index;
-            float t_near = bvh_box_entry(&nodes[near], &q, tmax);
-            float t_far = bvh_box_entry(&nodes[far], &q, tmax);
+            uint32_t left = ni + 1, right = n->index;
+            float t_left = bvh_box_entry(&nodes[left], &q, tmax);
+            float t_right = bvh_box_entry(&nodes[right], &q, tmax);
             if (counts)
                 counts->nodes += 2;
-            if (t_far < t_near) {
-                uint32_t ti = near;
-                near = far;
-                far = ti;
-                float tt = t_near;
-                t_near = t_far;
-                t_far = tt;
-            }
+            /* nearer child first; selects rather than a branch, which would
+             * be mispredicted about half the time */
+            bool swap = t_right < t_left;
+            uint32_t near = swap ? right : left, far = swap ? left : right;
+            float t_near = swap ? t_right : t_left, t_far = swap ? t_left : t_right;
             if (t_near != INFINITY) {
                 if (t_far != INFINITY) {
                     stack[sp].node = far;

@@ -4,8 +4,9 @@
  * triangle, one plane, tiny with huge, a run that drives the spatial split
  * deep), checked by the validator and against brute force for closest hits,
  * any hits, the counted query, and the (tmin, tmax) interval; statistics
- * worked out by hand; the parallel build equal to the serial one; and the
- * validator failing on corrupted trees.
+ * worked out by hand; the parallel build equal to the serial one; the
+ * validator failing on corrupted trees; and the real models galleon, castle
+ * and bunny (built on two threads) of ../shared/models.
  *
  * Brute force is the truth throughout. The heavy cross-kind agreement runs
  * are test_accel.c's; these stay small enough to run in seconds.
@@ -17,6 +18,7 @@
 
 #include "arbor/accel.h"
 #include "arbor/brute.h"
+#include "arbor/load.h"
 #include "../../src/accel/bvh_internal.h"
 #include "support.h"
 #include "unity.h"
@@ -482,11 +484,12 @@ static void test_sah_has_lowest_cost(void)
 }
 
 /* The build on two threads makes the same tree as on one: same statistics
- * and the same hits, on a soup big enough to fork at the top levels. */
+ * and the same hits, on a soup big enough (over 64k triangles) to fork at
+ * the top levels and split the linear passes. */
 static void test_parallel_build_matches_serial(void)
 {
     arbor_mesh m;
-    test_random_soup(&m, 40000, 14);
+    test_random_soup(&m, 70000, 14);
     arbor_ray *rays = test_random_rays(&m, 500, 15);
     truth_set ts = truth_make(&m, rays, 100);
     for (size_t k = 0; k < NBUILDERS; k++) {
@@ -608,6 +611,28 @@ static void test_validator_catches_corruption(void)
     arbor_mesh_free(&m);
 }
 
+/* A real model: every builder valid and agreeing with brute force on a few
+ * random rays; threads is the build's. */
+static void check_model(const char *file, size_t nrays, int threads)
+{
+    arbor_mesh m;
+    arbor_err e;
+    const char *path = test_shared_model(file);
+    if (!arbor_load_model(path, &m, &e)) {
+        char msg[768];
+        snprintf(msg, sizeof msg, "loading %s: %s", path, e.msg);
+        TEST_FAIL_MESSAGE(msg);
+    }
+    arbor_ray *rays = test_random_rays(&m, nrays, 16);
+    check_builders(&m, rays, nrays, threads, file);
+    free(rays);
+    arbor_mesh_free(&m);
+}
+
+static void test_galleon(void) { check_model("galleon.obj", 1000, 1); }
+static void test_castle(void) { check_model("castle.obj", 1000, 1); }
+static void test_bunny_two_threads(void) { check_model("bunny.obj", 200, 2); }
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -625,5 +650,8 @@ int main(void)
     RUN_TEST(test_sah_has_lowest_cost);
     RUN_TEST(test_parallel_build_matches_serial);
     RUN_TEST(test_validator_catches_corruption);
+    RUN_TEST(test_galleon);
+    RUN_TEST(test_castle);
+    RUN_TEST(test_bunny_two_threads);
     return UNITY_END();
 }
