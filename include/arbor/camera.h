@@ -36,7 +36,17 @@ void arbor_camera_orbit(arbor_camera *c, arbor_aabb b, float yaw_deg, float pitc
 void arbor_camera_orbit_protocol(float *yaw_deg, float *pitch_deg, float *distance);
 
 /* The ray through image point (px, py) in pixels (pixel centres at +0.5):
- * origin the eye, direction normalised, t in (0, +inf). */
-arbor_ray arbor_camera_ray(const arbor_camera *c, float px, float py);
+ * origin the eye, direction normalised, t in (0, +inf). Inline because the
+ * renderer calls it once per sample: as a call, returning the ray through
+ * memory cost a store-forwarding stall per pixel. */
+static inline arbor_ray arbor_camera_ray(const arbor_camera *c, float px, float py)
+{
+    float aspect = (float)c->width / (float)c->height;
+    float sx = (2.0f * px / (float)c->width - 1.0f) * c->tan_half_fov * aspect;
+    float sy = (1.0f - 2.0f * py / (float)c->height) * c->tan_half_fov;
+    arbor_vec3 d = vec3_add(c->forward, vec3_add(vec3_scale(c->right, sx), vec3_scale(c->up, sy)));
+    arbor_ray r = {c->eye, 0.0f, vec3_normalize(d), INFINITY};
+    return r;
+}
 
 #endif

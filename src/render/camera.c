@@ -49,13 +49,3 @@ void arbor_camera_orbit(arbor_camera *c, arbor_aabb b, float yaw_deg, float pitc
     arbor_vec3 eye = vec3_add(centre, vec3_scale(dir, distance * d));
     arbor_camera_look_at(c, eye, centre, vec3(0.0f, 1.0f, 0.0f), fov_deg, width, height);
 }
-
-arbor_ray arbor_camera_ray(const arbor_camera *c, float px, float py)
-{
-    float aspect = (float)c->width / (float)c->height;
-    float sx = (2.0f * px / (float)c->width - 1.0f) * c->tan_half_fov * aspect;
-    float sy = (1.0f - 2.0f * py / (float)c->height) * c->tan_half_fov;
-    arbor_vec3 d = vec3_add(c->forward, vec3_add(vec3_scale(c->right, sx), vec3_scale(c->up, sy)));
-    arbor_ray r = {c->eye, 0.0f, vec3_normalize(d), INFINITY};
-    return r;
-}

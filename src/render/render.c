@@ -146,6 +146,13 @@ static bool occluded(const arbor_frame *f, const arbor_ray *r, tile_tally *t)
 
 /* ---- the modes: each returns one sample's colour ---- */
 
+/* v clamped to [0, 1], NaN to 0; plain comparisons, which compile to
+ * min/max instructions where fminf/fmaxf would be library calls. */
+static float clamp01(float v)
+{
+    return v > 1.0f ? 1.0f : (v > 0.0f ? v : 0.0f);
+}
+
 static arbor_vec3 grey(float v)
 {
     return vec3(v, v, v);
@@ -216,7 +223,7 @@ static arbor_vec3 shade_depth(const arbor_frame *f, arbor_ray r, tile_tally *t)
     if (!trace_primary(f, &r, &h, t))
         return f->params.background;
     float v = 1.0f - (h.t - f->depth_near) / (f->depth_far - f->depth_near);
-    return grey(fminf(1.0f, fmaxf(0.0f, v)));
+    return grey(clamp01(v));
 }
 
 static arbor_vec3 shade_ao(const arbor_frame *f, arbor_ray r, sample_rng *g, tile_tally *t)
@@ -295,7 +302,7 @@ static void sample_offset(int s, int spp, int grid, const uint8_t *perm, sample_
 
 static uint8_t to_byte(float v)
 {
-    return (uint8_t)(fminf(1.0f, fmaxf(0.0f, v)) * 255.0f + 0.5f);
+    return (uint8_t)(clamp01(v) * 255.0f + 0.5f);
 }
 
 static void store_rgb(uint8_t *px, arbor_vec3 c)
@@ -330,8 +337,8 @@ static void render_pixel(arbor_frame *f, int x, int y, tile_tally *t)
     }
     arbor_vec3 c = vec3_scale(sum, 1.0f / (float)spp);
     if (p->mode == ARBOR_MODE_SHADED) {
-        c = vec3(powf(fmaxf(c.x, 0.0f), 1.0f / GAMMA), powf(fmaxf(c.y, 0.0f), 1.0f / GAMMA),
-                 powf(fmaxf(c.z, 0.0f), 1.0f / GAMMA));
+        c = vec3(powf(clamp01(c.x), 1.0f / GAMMA), powf(clamp01(c.y), 1.0f / GAMMA),
+                 powf(clamp01(c.z), 1.0f / GAMMA));
     }
     store_rgb(f->rgb + 3 * index, c);
 }
@@ -359,7 +366,7 @@ static void render_tile(void *ctx, uint32_t task)
 static arbor_vec3 heat_colour(float v)
 {
     static const float stops[6][3] = {{0, 0, 1}, {0, 1, 1}, {0, 1, 0}, {1, 1, 0}, {1, 0, 0}, {1, 1, 1}};
-    v = fminf(1.0f, fmaxf(0.0f, v)) * 5.0f;
+    v = clamp01(v) * 5.0f;
     int i = v >= 5.0f ? 4 : (int)v;
     float w = v - (float)i;
     return vec3(stops[i][0] + w * (stops[i + 1][0] - stops[i][0]), stops[i][1] + w * (stops[i + 1][1] - stops[i][1]),
