@@ -16,7 +16,7 @@
 
 #include "arbor/png.h"
 
-#define PNG_ZLIB_LEVEL 2
+#define PNG_ZLIB_LEVEL 1
 
 /* Where encoded bytes go: a FILE, or a buffer that grows by doubling. */
 typedef struct {
@@ -80,7 +80,7 @@ static bool encode(const uint8_t *rgb, int width, int height, png_sink *sink)
     else
         png_set_write_fn(png, sink, write_memory, flush_memory);
     png_set_compression_level(png, PNG_ZLIB_LEVEL);
-    png_set_filter(png, PNG_FILTER_TYPE_BASE, PNG_FILTER_SUB);
+    png_set_filter(png, PNG_FILTER_TYPE_BASE, PNG_FILTER_UP);
     png_set_IHDR(png, info, (png_uint_32)width, (png_uint_32)height, 8, PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
                  PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
     png_write_info(png, info);
