@@ -23,7 +23,8 @@
  * arbor_job_release at any time (including inside done).
  *
  * arbor_pool_destroy cancels every job not yet finished, lets the workers
- * call their done callbacks, and joins the workers.
+ * call their done callbacks, and joins the workers. It must not be called
+ * from a task or a done callback (it would wait for its own thread).
  */
 #ifndef ARBOR_POOL_H
 #define ARBOR_POOL_H
