@@ -149,6 +149,18 @@ static bool run_chunks(chunk_plan *plan, arbor_err *e)
     return ok;
 }
 
+/* The rays [begin, end) of chunk number `chunk` of a set of n rays. */
+static void chunk_range(size_t chunk, size_t n, size_t *begin, size_t *end)
+{
+    *begin = chunk * ARBOR_TRACE_CHUNK;
+    *end = *begin + ARBOR_TRACE_CHUNK < n ? *begin + ARBOR_TRACE_CHUNK : n;
+}
+
+static size_t chunk_count(size_t n)
+{
+    return (n + ARBOR_TRACE_CHUNK - 1) / ARBOR_TRACE_CHUNK;
+}
+
 /* ---- tracing and timing sets ---- */
 
 typedef struct {
@@ -163,16 +175,11 @@ typedef struct {
 static void set_pass_chunk(void *ctx, size_t chunk)
 {
     set_pass *p = ctx;
-    size_t begin = chunk * ARBOR_TRACE_CHUNK;
-    size_t end = begin + ARBOR_TRACE_CHUNK < p->n ? begin + ARBOR_TRACE_CHUNK : p->n;
+    size_t begin, end;
+    chunk_range(chunk, p->n, &begin, &end);
     arbor_tally t = {0, 0.0};
     p->kernel(p->tracer, p->rays + begin, end - begin, p->any_hit, &t);
     p->chunk_tallies[chunk] = t;
-}
-
-static size_t chunk_count(size_t n)
-{
-    return (n + ARBOR_TRACE_CHUNK - 1) / ARBOR_TRACE_CHUNK;
 }
 
 static bool run_pass(set_pass *pass, int threads, arbor_tally *tally, arbor_err *e)
@@ -242,8 +249,8 @@ typedef struct {
 static void hits_pass_chunk(void *ctx, size_t chunk)
 {
     hits_pass *p = ctx;
-    size_t begin = chunk * ARBOR_TRACE_CHUNK;
-    size_t end = begin + ARBOR_TRACE_CHUNK < p->n ? begin + ARBOR_TRACE_CHUNK : p->n;
+    size_t begin, end;
+    chunk_range(chunk, p->n, &begin, &end);
     for (size_t i = begin; i < end; i++) {
         arbor_ray r = p->rays[i];
         p->found[i] = arbor_accel_intersect(p->a, &r, &p->hits[i]);
