@@ -26,13 +26,18 @@ static inline arbor_vec3 vec3_cross(arbor_vec3 a, arbor_vec3 b)
 }
 static inline float vec3_length(arbor_vec3 a) { return sqrtf(vec3_dot(a, a)); }
 static inline arbor_vec3 vec3_normalize(arbor_vec3 a) { return vec3_scale(a, 1.0f / vec3_length(a)); }
+/* Compare-and-select rather than fminf/fmaxf: those are libm calls unless
+ * NaNs are ruled out at compile time, and these run in builders' inner loops.
+ * Coordinates are never NaN (the loaders reject them). */
+static inline float arbor_minf(float a, float b) { return a < b ? a : b; }
+static inline float arbor_maxf(float a, float b) { return a > b ? a : b; }
 static inline arbor_vec3 vec3_min(arbor_vec3 a, arbor_vec3 b)
 {
-    return vec3(fminf(a.x, b.x), fminf(a.y, b.y), fminf(a.z, b.z));
+    return vec3(arbor_minf(a.x, b.x), arbor_minf(a.y, b.y), arbor_minf(a.z, b.z));
 }
 static inline arbor_vec3 vec3_max(arbor_vec3 a, arbor_vec3 b)
 {
-    return vec3(fmaxf(a.x, b.x), fmaxf(a.y, b.y), fmaxf(a.z, b.z));
+    return vec3(arbor_maxf(a.x, b.x), arbor_maxf(a.y, b.y), arbor_maxf(a.z, b.z));
 }
 static inline float vec3_axis(arbor_vec3 a, int axis) { return axis == 0 ? a.x : axis == 1 ? a.y : a.z; }
 static inline int vec3_max_axis(arbor_vec3 a)

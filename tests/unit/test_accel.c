@@ -13,6 +13,7 @@
 #include "arbor/accel.h"
 #include "arbor/brute.h"
 #include "arbor/load.h"
+#include "arbor/procgen.h"
 #include "support.h"
 #include "unity.h"
 
@@ -176,6 +177,31 @@ static void test_galleon(void) { check_file(test_shared_model("galleon.obj"), 2)
 static void test_castle(void) { check_file(test_shared_model("castle.obj"), 4); }
 static void test_bunny(void) { check_file(test_shared_model("bunny.obj"), 8); }
 
+/* The project's own models: the Cornell box as committed, and the procedural
+ * ones generated a level smaller than models/ holds, so that brute force over
+ * 100k rays stays affordable. */
+static void test_own_models(void)
+{
+    check_file(test_repo_model("cornell.obj"), 4);
+    static const struct {
+        const char *name;
+        arbor_gen_kind kind;
+        arbor_gen_params params;
+    } own[] = {
+        {"menger level 2", ARBOR_GEN_MENGER, {2, ARBOR_GEN_UNSET}},
+        {"sphereflake level 2", ARBOR_GEN_SPHEREFLAKE, {2, 3}},
+        {"heightfield 48", ARBOR_GEN_HEIGHTFIELD, {ARBOR_GEN_UNSET, 48}},
+    };
+    for (size_t i = 0; i < sizeof own / sizeof own[0]; i++) {
+        arbor_mesh m;
+        arbor_err e;
+        arbor_mesh_init(&m);
+        TEST_ASSERT_TRUE_MESSAGE(arbor_gen(own[i].kind, own[i].params, &m, &e), e.msg);
+        check_mesh(own[i].name, &m, 4);
+        arbor_mesh_free(&m);
+    }
+}
+
 static void test_random_soup_10k(void)
 {
     arbor_mesh m;
@@ -191,5 +217,6 @@ int main(void)
     RUN_TEST(test_galleon);
     RUN_TEST(test_castle);
     RUN_TEST(test_bunny);
+    RUN_TEST(test_own_models);
     return UNITY_END();
 }
