@@ -314,6 +314,30 @@ static bool sah_choose(const bvh_builder *B, uint32_t b, uint32_t e, float area,
     return split_cost < leaf_cost || e - b > B->max_leaf;
 }
 
+/* The SAH decision for a node of two triangles whose centroids differ: the
+ * only split puts one on each side, which binning on any axis where they
+ * differ finds too; it is taken by the same cost model as sah_choose's.
+ * Returns the split index (b + 1, the triangle with the smaller centroid on
+ * the first such axis first) or 0 for a leaf. Nodes of two triangles are a
+ * third or more of all nodes: binning them costs more than the rest. */
+static uint32_t sah_split_pair(const bvh_builder *B, uint32_t b, float area, const build_box *cbox)
+{
+    uint32_t *idx = B->idx;
+    double split_cost = (double)B->cost_traverse * area +
+                        (double)B->cost_intersect * ((double)box_area(&B->tri_box[idx[b]]) +
+                                                     (double)box_area(&B->tri_box[idx[b + 1]]));
+    double leaf_cost = (double)B->cost_intersect * area * 2.0;
+    if (!(split_cost < leaf_cost) && B->max_leaf >= 2)
+        return 0;
+    int axis = cbox->hi[0] > cbox->lo[0] ? 0 : cbox->hi[1] > cbox->lo[1] ? 1 : 2;
+    if (centroid_axis(B, idx[b + 1], axis) < centroid_axis(B, idx[b], axis)) {
+        uint32_t t = idx[b];
+        idx[b] = idx[b + 1];
+        idx[b + 1] = t;
+    }
+    return b + 1;
+}
+
 /* Where the node over idx[b, e) at depth `depth` splits: the index in (b, e)
  * where its right child's triangles start, or 0 (never such an index) for a
  * leaf. Reorders idx[b, e) to match. */
@@ -333,6 +357,8 @@ static uint32_t choose_split(const bvh_builder *B, uint32_t b, uint32_t e, uint3
     uint32_t m;
     switch (B->builder) {
     case ARBOR_BUILD_SAH:
+        if (n == 2)
+            return sah_split_pair(B, b, area, cbox);
         if (!sah_choose(B, b, e, area, cbox, &axis, &pos))
             return 0;
         m = partition(B, b, e, axis, pos);
