@@ -565,14 +565,20 @@ static void builder_init(bvh_builder *B, const arbor_build_opts *o)
     B->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : BVH_COST_INTERSECT;
 }
 
-/* Copies the finished nodes into an array of exactly their size, aligned so
- * that no 32-byte node straddles two cache lines. */
-static bvh_node *nodes_shrink(const bvh_node *nodes, uint32_t used)
+/* Shrinks the worst-case node array (taking it over) to the nodes used,
+ * keeping it 64-byte aligned so that no 32-byte node straddles two cache
+ * lines: in place when realloc allows (it usually does when shrinking),
+ * through an aligned copy when it moved the nodes to a less aligned place. */
+static bvh_node *nodes_shrink(bvh_node *nodes, uint32_t used)
 {
     size_t bytes = ((size_t)used * sizeof(bvh_node) + 63) & ~(size_t)63;
+    bvh_node *shrunk = realloc(nodes, bytes);
+    if (shrunk == NULL || ((uintptr_t)shrunk & 63) == 0)
+        return shrunk != NULL ? shrunk : nodes;
     bvh_node *out = aligned_alloc(64, bytes);
     if (out != NULL)
-        memcpy(out, nodes, (size_t)used * sizeof(bvh_node));
+        memcpy(out, shrunk, (size_t)used * sizeof(bvh_node));
+    free(shrunk);
     return out;
 }
 
@@ -613,6 +619,7 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
     bvh_tally tally = {0};
     tree->nnodes = build_subtree(&B, 0, 0, n, 0, &tally);
     tree->nodes = nodes_shrink(scratch, tree->nnodes);
+    scratch = NULL;
     if (tree->nodes == NULL)
         goto nomem;
     tri_pass_run(copy_leaf_vertices, pass, parallel);
