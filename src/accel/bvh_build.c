@@ -16,11 +16,12 @@
  *   mean     the mean centroid on that axis;
  *   sah      binned SAH (Wald, "On fast Construction of SAH-based Bounding
  *            Volume Hierarchies", 2007): centroids fall into BVH_SAH_BINS
- *            bins per axis (fewer for small nodes), the cost of each plane
- *            between bins is evaluated from prefix and suffix sums of the
- *            bins, and the cheapest plane wins; the node stays a leaf when
- *            that costs more than intersecting its triangles (and it is
- *            small enough).
+ *            bins per axis (fewer for small nodes, but at least 16), the
+ *            cost of each plane between bins is evaluated from prefix and
+ *            suffix sums of the bins, and the cheapest plane wins (nodes of
+ *            two triangles are decided directly); the node stays a leaf
+ *            when splitting costs more than intersecting its triangles (and
+ *            it is small enough).
  * When a split would leave one side empty (rounding, or everything on one
  * side of the plane) the node splits at the object median instead, which
  * always gives two non-empty halves; when all centroids coincide the range is
@@ -46,6 +47,7 @@
 #define BVH_SIMPLE_LEAF 4
 #define BVH_SAH_LEAF 8
 #define BVH_SAH_BINS 32
+#define BVH_SAH_MIN_BINS 16
 #define BVH_COST_TRAVERSE 1.0f
 #define BVH_COST_INTERSECT 1.0f
 /* A node forks onto a second thread only if it has this many triangles, and
@@ -273,11 +275,12 @@ static float sah_sweep(const build_box *box, const uint32_t *count, uint32_t nbi
  * (the usual one multiplied through by A(n), so flat nodes need no division).
  * *axis and *pos stay as they came if no plane has triangles on both sides.
  * Nodes of fewer than BVH_SAH_BINS triangles use as many bins as they have
- * triangles (at least 16): more would be mostly empty. */
+ * triangles, but at least BVH_SAH_MIN_BINS: more would be mostly empty. */
 static bool sah_choose(const bvh_builder *B, uint32_t b, uint32_t e, float area, const build_box *cbox, int *axis,
                        float *pos)
 {
-    uint32_t nbins = e - b < BVH_SAH_BINS ? (e - b > 16 ? e - b : 16) : BVH_SAH_BINS;
+    uint32_t n = e - b;
+    uint32_t nbins = n < BVH_SAH_BINS ? (n > BVH_SAH_MIN_BINS ? n : BVH_SAH_MIN_BINS) : BVH_SAH_BINS;
     sah_bins bins;
     const float *lo = cbox->lo;
     float scale[3];
@@ -318,8 +321,9 @@ static bool sah_choose(const bvh_builder *B, uint32_t b, uint32_t e, float area,
  * only split puts one on each side, which binning on any axis where they
  * differ finds too; it is taken by the same cost model as sah_choose's.
  * Returns the split index (b + 1, the triangle with the smaller centroid on
- * the first such axis first) or 0 for a leaf. Nodes of two triangles are a
- * third or more of all nodes: binning them costs more than the rest. */
+ * the first such axis first) or 0 for a leaf. Two triangles is the commonest
+ * node size near the leaves, and clearing and sweeping bins for them cost
+ * more than their binning. */
 static uint32_t sah_split_pair(const bvh_builder *B, uint32_t b, float area, const build_box *cbox)
 {
     uint32_t *idx = B->idx;
