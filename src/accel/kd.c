@@ -1,13 +1,11 @@
-/* kd.c - placeholder until the kd builders land. */
-#include "accel_impl.h"
+/*
+ * kd.c - the k-d tree as accel.c sees it: the arbor_kd_ops table. The tree
+ * and its invariants are described in kd_internal.h; building is in
+ * kd_build.c and kd_sah.c, ray queries in kd_traverse.c, checking in
+ * kd_validate.c.
+ */
+#include "kd_internal.h"
 
-static void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats *s, arbor_err *e)
-{
-    (void)m;
-    (void)o;
-    (void)s;
-    arbor_fail(e, ARBOR_ERR_INVALID, "kd trees are not written yet");
-    return (void *)0;
-}
-
-const arbor_accel_ops arbor_kd_ops = {kd_build, 0, 0, 0, 0, 0};
+const arbor_accel_ops arbor_kd_ops = {
+    kd_build, kd_intersect, kd_intersect_counted, kd_occluded, kd_validate, kd_destroy,
+};

@@ -1,0 +1,173 @@
+/*
+ * kd_traverse.c - ray queries on a k-d tree: closest hit (plain and with
+ * work counters) and any hit, all through one inline traversal.
+ *
+ * The traversal is Havran's recursive ray traversal done with an explicit
+ * stack (as pbrt's KdTreeAccel::Intersect): the ray, clipped to the root
+ * cell as the parametric interval [tnear, tfar], meets each inner node's
+ * plane at tsplit; the child on the ray's near side is visited with
+ * [tnear, tsplit] and the far one is pushed with [tsplit, tfar], or only one
+ * child is visited when tsplit lies outside the interval. Leaves are thus
+ * reached front to back, and the todo stack holds at most one entry per
+ * level (KD_MAX_DEPTH).
+ *
+ * Exactness. A hit is kept wherever it is found, even slightly outside the
+ * current leaf's interval: every hit a triangle test reports is a real hit
+ * of the ray, so keeping it can only be right, while rejecting it would
+ * lose hits whose t and the cell's t round differently (a triangle lying in
+ * a split plane, for instance). Pending children that start beyond the best
+ * hit (with a margin of 2^-20 relative for that rounding) are skipped, and
+ * the search ends when none is left: the first hit along the ray lies in a
+ * leaf the ray reaches before any such child, and that leaf lists the
+ * triangle. They are skipped one by one, not all at once, because a ray
+ * lying in a plane pushes a child with the whole interval, so the stack is
+ * not always ordered by tnear.
+ * Among hits at exactly the same t the lowest triangle index wins, as in
+ * brute force, whatever order the leaves list them in.
+ *
+ * Planes parallel to the ray: a zero direction component is made +0, so its
+ * reciprocal is +inf and tsplit is +inf or -inf (one child, the one the
+ * origin is in) or NaN when the origin lies in the plane: then both
+ * children are visited with the whole interval (the NaN-ignoring min / max
+ * below). A ray starting on a plane gets tsplit = 0 and visits the side it
+ * moves into (and the other with an empty interval when tnear is 0).
+ */
+#include "kd_internal.h"
+
+typedef struct {
+    uint32_t node;
+    float tnear, tfar;
+} kd_todo;
+
+/* Clips the ray to the tree's box: [*tnear, *tfar] within [tmin, tmax];
+ * false when it misses. The box's interval is widened by pbrt's 2 gamma(3)
+ * (relative) so that rounding cannot cut off a ray that grazes the box or
+ * meets a flat one. A ray parallel to a slab (infinite reciprocal) is in it
+ * or misses, decided here, because (lo - o) * inv is NaN when o = lo. */
+static inline bool kd_clip_root(const kd_tree *tree, const arbor_ray *r, const float o[3], const float inv[3],
+                                float *tnear, float *tfar)
+{
+    const float widen = 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f);
+    float t0 = -INFINITY, t1 = INFINITY;
+    for (int k = 0; k < 3; k++) {
+        float lo = kd_lo(&tree->bounds, k), hi = kd_hi(&tree->bounds, k);
+        if (isinf(inv[k])) {
+            if (!(o[k] >= lo && o[k] <= hi))
+                return false;
+            continue;
+        }
+        float a = (lo - o[k]) * inv[k], b = (hi - o[k]) * inv[k];
+        t0 = fmaxf(t0, a < b ? a : b);
+        t1 = fminf(t1, a < b ? b : a);
+    }
+    t0 = t0 > 0.0f ? t0 * (1.0f - widen) : t0 * (1.0f + widen);
+    t1 = t1 > 0.0f ? t1 * (1.0f + widen) : t1 * (1.0f - widen);
+    *tnear = t0 > r->tmin ? t0 : r->tmin;
+    *tfar = t1 < r->tmax ? t1 : r->tmax;
+    return *tnear <= *tfar;
+}
+
+/* The one traversal. count == NULL and any_hit are compile-time constants
+ * at every call, so each query gets its own copy without the code it does
+ * not use. */
+static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, arbor_ray *r, arbor_hit *h,
+                                                           arbor_trace_counts *count, bool any_hit)
+{
+    const float o[3] = {r->o.x, r->o.y, r->o.z};
+    const float d[3] = {r->d.x + 0.0f, r->d.y + 0.0f, r->d.z + 0.0f};  /* -0 becomes +0 */
+    const float inv[3] = {1.0f / d[0], 1.0f / d[1], 1.0f / d[2]};
+    float tnear, tfar;
+    if (!kd_clip_root(tree, r, o, inv, &tnear, &tfar))
+        return false;
+    arbor_ray_prep prep;
+    arbor_ray_prepare(r, &prep);
+    const kd_node *nodes = tree->nodes;
+    const arbor_mesh *mesh = tree->mesh;
+    kd_todo todo[KD_MAX_DEPTH];
+    int ntodo = 0;
+    uint32_t at = 0;
+    /* limit: the triangle tests' bound, just above best once there is a hit
+     * so that a tie can reach the index comparison; stop: best + margin */
+    float best = r->tmax, limit = r->tmax, stop = r->tmax, best_u = 0.0f, best_v = 0.0f;
+    uint32_t best_tri = UINT32_MAX;
+    for (;;) {
+        const kd_node *n = &nodes[at];
+        if (count)
+            count->nodes++;
+        uint32_t axis = kd_node_kind(*n);
+        if (axis != KD_LEAF) {
+            float tsplit = (n->split - o[axis]) * inv[axis];
+            uint32_t below = at + 1, above = kd_node_high(*n);
+            uint32_t near = d[axis] >= 0.0f ? below : above, far = near == below ? above : below;
+            if (tsplit > tfar) {
+                at = near;
+            } else if (tsplit < tnear) {
+                at = far;
+            } else {
+                todo[ntodo].node = far;
+                todo[ntodo].tnear = tsplit > tnear ? tsplit : tnear;
+                todo[ntodo].tfar = tfar;
+                ntodo++;
+                at = near;
+                tfar = tsplit < tfar ? tsplit : tfar;
+            }
+            continue;
+        }
+        uint32_t ntris = kd_node_high(*n);
+        const uint32_t *tris = kd_leaf_tris(n, tree->tri_index);
+        for (uint32_t i = 0; i < ntris; i++) {
+            uint32_t tri = tris[i];
+            arbor_vec3 a, b, c;
+            float t, u, v;
+            arbor_mesh_tri(mesh, tri, &a, &b, &c);
+            if (count)
+                count->tris++;
+            if (!arbor_triangle_intersect(r, &prep, a, b, c, limit, &t, &u, &v))
+                continue;
+            if (any_hit)
+                return true;
+            if (t < best || tri < best_tri) {
+                best = t;
+                best_u = u;
+                best_v = v;
+                best_tri = tri;
+                limit = nextafterf(t, INFINITY);
+                stop = t + fabsf(t) * 0x1p-20f;
+            }
+        }
+        /* next: the nearest pending child that can still hold a closer hit */
+        do {
+            if (ntodo == 0)
+                goto done;
+            ntodo--;
+            at = todo[ntodo].node;
+            tnear = todo[ntodo].tnear;
+            tfar = todo[ntodo].tfar;
+        } while (tnear > stop);
+    }
+done:
+    if (any_hit || best_tri == UINT32_MAX)
+        return false;
+    r->tmax = best;
+    h->t = best;
+    h->u = best_u;
+    h->v = best_v;
+    h->tri = best_tri;
+    return true;
+}
+
+bool kd_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
+{
+    return kd_trace(impl, r, h, NULL, false);
+}
+
+bool kd_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
+{
+    return kd_trace(impl, r, h, c, false);
+}
+
+bool kd_occluded(const void *impl, const arbor_ray *r)
+{
+    arbor_ray copy = *r;
+    return kd_trace(impl, &copy, NULL, NULL, true);
+}
