@@ -39,6 +39,8 @@ typedef struct {
     uint32_t count;   /* inner: 0; leaf: number of triangles */
 } bvh_node;
 
+_Static_assert(sizeof(bvh_node) == 32, "a node is half a cache line");
+
 typedef struct {
     bvh_node *nodes;       /* nnodes, depth-first */
     uint32_t nnodes;
