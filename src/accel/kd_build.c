@@ -52,23 +52,6 @@
 
 /* ---- events ----------------------------------------------------------- */
 
-/* Appends the events of a triangle whose clipped box is `box`; returns how
- * many (3 to 6). */
-static size_t kd_box_events(uint32_t tri, const arbor_aabb *box, kd_event *out)
-{
-    size_t n = 0;
-    for (int k = 0; k < 3; k++) {
-        float lo = kd_lo(box, k), hi = kd_hi(box, k);
-        if (lo == hi) {
-            out[n++] = kd_event_make(lo, tri, k, KD_EVENT_PLANAR);
-        } else {
-            out[n++] = kd_event_make(lo, tri, k, KD_EVENT_START);
-            out[n++] = kd_event_make(hi, tri, k, KD_EVENT_END);
-        }
-    }
-    return n;
-}
-
 static void kd_insertion_sort(kd_event *ev, size_t n)
 {
     for (size_t i = 1; i < n; i++) {
@@ -80,9 +63,10 @@ static void kd_insertion_sort(kd_event *ev, size_t n)
     }
 }
 
-/* Sorts events into (axis, position, type) order: LSD radix sort, 8 bits a
- * pass over bits 28-63 (the triangle bits below keep their input order),
- * skipping passes in which all events have the same digit. tmp holds n. */
+/* Sorts events of one axis into (position, type) order: LSD radix sort, 8
+ * bits a pass over bits 28-63 (the triangle bits below keep their input
+ * order), skipping passes in which all events have the same digit. tmp
+ * holds n. */
 static void kd_sort_events(kd_event *ev, size_t n, kd_event *tmp)
 {
     if (n <= KD_INSERTION_SORT_MAX) {
@@ -112,15 +96,58 @@ static void kd_sort_events(kd_event *ev, size_t n, kd_event *tmp)
         memcpy(ev, src, n * sizeof *ev);
 }
 
-/* Sets t->axis_begin from its sorted events. */
-static void kd_task_index_axes(kd_task *t, size_t nevents)
+/* New events being gathered: one run per axis, each with room for two
+ * events per triangle, so that each run is sorted on its own (three short
+ * sorts instead of one long one) and the runs are then packed in axis
+ * order, which is sorted order. */
+typedef struct {
+    kd_event *run[3];
+    size_t n[3];
+} kd_event_runs;
+
+/* Runs in ev, which has room for 6 * ntris events. */
+static void kd_runs_init(kd_event_runs *r, kd_event *ev, size_t ntris)
 {
-    size_t count[3] = {0, 0, 0};
-    for (size_t i = 0; i < nevents; i++)
-        count[kd_event_axis(t->events[i])]++;
-    t->axis_begin[0] = 0;
-    for (int k = 0; k < 3; k++)
-        t->axis_begin[k + 1] = t->axis_begin[k] + count[k];
+    for (int k = 0; k < 3; k++) {
+        r->run[k] = ev + 2 * ntris * (size_t)k;
+        r->n[k] = 0;
+    }
+}
+
+/* Adds the events of a triangle whose (clipped) box is `box`: on each axis
+ * a start and an end, or one planar event when the box is flat there. */
+static void kd_runs_add(kd_event_runs *r, uint32_t tri, const arbor_aabb *box)
+{
+    for (int k = 0; k < 3; k++) {
+        float lo = kd_lo(box, k), hi = kd_hi(box, k);
+        kd_event *out = r->run[k] + r->n[k];
+        if (lo == hi) {
+            out[0] = kd_event_make(lo, tri, k, KD_EVENT_PLANAR);
+            r->n[k] += 1;
+        } else {
+            out[0] = kd_event_make(lo, tri, k, KD_EVENT_START);
+            out[1] = kd_event_make(hi, tri, k, KD_EVENT_END);
+            r->n[k] += 2;
+        }
+    }
+}
+
+/* Sorts each run and packs them into one sorted list at r->run[0];
+ * returns its length and sets axis_begin (if not NULL). tmp holds the
+ * longest run. */
+static size_t kd_runs_finish(kd_event_runs *r, kd_event *tmp, size_t axis_begin[4])
+{
+    size_t n = 0;
+    for (int k = 0; k < 3; k++) {
+        kd_sort_events(r->run[k], r->n[k], tmp);
+        memmove(r->run[0] + n, r->run[k], r->n[k] * sizeof *tmp);
+        if (axis_begin != NULL)
+            axis_begin[k] = n;
+        n += r->n[k];
+    }
+    if (axis_begin != NULL)
+        axis_begin[3] = n;
+    return n;
 }
 
 /* ---- perfect splits: a triangle clipped to a cell --------------------- */
@@ -137,41 +164,58 @@ typedef struct {
  * more plane, the split, may add a tenth). */
 #define KD_CLIP_MAX 10
 
-/* Sutherland-Hodgman against one plane, in place: keeps the part of the
- * polygon poly (n vertices, room for n + 1) with coordinate k >= bound
- * (keep_above) or <= bound. Points on the plane are kept. Returns the new
- * vertex count. */
-static int kd_clip_plane(kd_clip_vertex *poly, int n, int k, float bound, bool keep_above)
+/* Sutherland-Hodgman with one plane, both ways at once: the part of
+ * polygon in (n vertices) with coordinate k <= bound goes to below, the
+ * part with coordinate k >= bound to above (either may be NULL; counts in
+ * *nb, *na). Vertices on the plane go to both sides, and an edge crossing
+ * it strictly adds its crossing point to both. */
+static void kd_cut(const kd_clip_vertex *in, int n, int k, float bound, kd_clip_vertex *below, int *nb,
+                   kd_clip_vertex *above, int *na)
 {
-    int outside = 0;
+    int side[KD_CLIP_MAX];
     for (int i = 0; i < n; i++)
-        outside += !(keep_above ? poly[i].v[k] >= bound : poly[i].v[k] <= bound);
-    if (outside == 0 || outside == n)
-        return outside == 0 ? n : 0;
-    kd_clip_vertex in[KD_CLIP_MAX];
-    memcpy(in, poly, (size_t)n * sizeof *in);
-    int m = 0;
+        side[i] = (in[i].v[k] > bound) - (in[i].v[k] < bound);
+    int nbelow = 0, nabove = 0;
     for (int i = 0; i < n; i++) {
-        const kd_clip_vertex *a = &in[i], *c = &in[(i + 1) % n];
-        bool a_in = keep_above ? a->v[k] >= bound : a->v[k] <= bound;
-        bool c_in = keep_above ? c->v[k] >= bound : c->v[k] <= bound;
-        if (a_in)
-            poly[m++] = *a;
-        if (a_in != c_in) {
-            /* the edge crosses the plane strictly, so c->v[k] != a->v[k] */
+        int j = i + 1 == n ? 0 : i + 1;
+        const kd_clip_vertex *a = &in[i], *c = &in[j];
+        if (below != NULL && side[i] <= 0)
+            below[nbelow++] = *a;
+        if (above != NULL && side[i] >= 0)
+            above[nabove++] = *a;
+        if (side[i] * side[j] < 0) {
+            /* built in registers and stored field by field: a vertex
+             * built on the stack and copied whole stalls store forwarding */
             float s = (bound - a->v[k]) / (c->v[k] - a->v[k]);
-            kd_clip_vertex x;
-            x.exact = 1u << k;
-            for (int j = 0; j < 3; j++) {
-                x.v[j] = a->v[j] + (c->v[j] - a->v[j]) * s;
-                if ((a->exact & c->exact & (1u << j)) && a->v[j] == c->v[j])
-                    x.exact |= 1u << j;
-            }
-            x.v[k] = bound;
-            poly[m++] = x;
+            float x0 = k == 0 ? bound : a->v[0] + (c->v[0] - a->v[0]) * s;
+            float x1 = k == 1 ? bound : a->v[1] + (c->v[1] - a->v[1]) * s;
+            float x2 = k == 2 ? bound : a->v[2] + (c->v[2] - a->v[2]) * s;
+            unsigned same = (a->v[0] == c->v[0]) | (a->v[1] == c->v[1]) << 1 | (a->v[2] == c->v[2]) << 2;
+            unsigned exact = 1u << k | (a->exact & c->exact & same);
+            kd_clip_vertex *out[2] = {below ? &below[nbelow++] : NULL, above ? &above[nabove++] : NULL};
+            for (int o = 0; o < 2; o++)
+                if (out[o] != NULL) {
+                    out[o]->v[0] = x0;
+                    out[o]->v[1] = x1;
+                    out[o]->v[2] = x2;
+                    out[o]->exact = exact;
+                }
         }
     }
-    return m;
+    if (nb != NULL)
+        *nb = nbelow;
+    if (na != NULL)
+        *na = nabove;
+}
+
+/* Whether some vertex of poly lies beyond bound on axis k: below it when
+ * keep_above, above it otherwise. */
+static bool kd_sticks_out(const kd_clip_vertex *poly, int n, int k, float bound, bool keep_above)
+{
+    for (int i = 0; i < n; i++)
+        if (keep_above ? poly[i].v[k] < bound : poly[i].v[k] > bound)
+            return true;
+    return false;
 }
 
 /* The box of polygon poly (n > 0 vertices) within cell. Coordinates that
@@ -203,7 +247,7 @@ static arbor_aabb kd_polygon_box(const kd_clip_vertex *poly, int n, float slack,
 static void kd_clip_split(const kd_builder *b, uint32_t tri, const arbor_aabb *cell, kd_plane pl,
                           const arbor_aabb child_cell[2], bool in[2], arbor_aabb box[2])
 {
-    kd_clip_vertex poly[KD_CLIP_MAX], part[KD_CLIP_MAX];
+    kd_clip_vertex buf[2][KD_CLIP_MAX], *poly = buf[0], *spare = buf[1];
     arbor_vec3 p[3];
     arbor_mesh_tri(b->mesh, tri, &p[0], &p[1], &p[2]);
     for (int i = 0; i < 3; i++) {
@@ -211,16 +255,30 @@ static void kd_clip_split(const kd_builder *b, uint32_t tri, const arbor_aabb *c
         poly[i] = v;
     }
     int n = 3;
-    for (int k = 0; k < 3 && n > 0; k++) {
-        n = kd_clip_plane(poly, n, k, kd_lo(cell, k), true);
-        n = kd_clip_plane(poly, n, k, kd_hi(cell, k), false);
+    /* the cell's six faces: lo on each axis keeps what is above it, hi
+     * what is below; faces the polygon does not cross cost no copy */
+    for (int face = 0; face < 6 && n > 0; face++) {
+        int k = face >> 1;
+        bool keep_above = (face & 1) == 0;
+        float bound = keep_above ? kd_lo(cell, k) : kd_hi(cell, k);
+        if (!kd_sticks_out(poly, n, k, bound, keep_above))
+            continue;
+        if (keep_above)
+            kd_cut(poly, n, k, bound, NULL, NULL, spare, &n);
+        else
+            kd_cut(poly, n, k, bound, spare, &n, NULL, NULL);
+        kd_clip_vertex *swap = poly;
+        poly = spare;
+        spare = swap;
     }
+    kd_clip_vertex part[2][KD_CLIP_MAX];
+    int count[2] = {0, 0};
+    if (n > 0)
+        kd_cut(poly, n, pl.axis, pl.pos, part[0], &count[0], part[1], &count[1]);
     for (int c = 0; c < 2; c++) {
-        memcpy(part, poly, (size_t)n * sizeof *part);
-        int m = n > 0 ? kd_clip_plane(part, n, pl.axis, pl.pos, c == 1) : 0;
-        in[c] = m > 0;
+        in[c] = count[c] > 0;
         if (in[c])
-            box[c] = kd_polygon_box(part, m, b->clip_slack, &child_cell[c]);
+            box[c] = kd_polygon_box(part[c], count[c], b->clip_slack, &child_cell[c]);
     }
 }
 
@@ -229,10 +287,13 @@ static void kd_clip_split(const kd_builder *b, uint32_t tri, const arbor_aabb *c
 enum { KD_BELOW = 1, KD_ABOVE = 2, KD_BOTH = 3 };
 
 /* Per-thread scratch: side[] is indexed by triangle (only the entries of
- * the node being split are meaningful); start[] and values[] serve the
- * median. */
+ * the node being split are meaningful); fresh[] holds a split's new events
+ * (grown as needed, so small nodes never allocate); start[] and values[]
+ * serve the median. */
 typedef struct {
     uint8_t *side;
+    kd_event *fresh;
+    size_t fresh_cap;
     float *start;
     float *values;
 } kd_scratch;
@@ -242,6 +303,8 @@ static bool kd_scratch_init(kd_scratch *s, const kd_builder *b)
     size_t n = b->mesh->ntris + 1u;
     bool median = b->builder == ARBOR_BUILD_MEDIAN;
     s->side = malloc(n);
+    s->fresh = NULL;
+    s->fresh_cap = 0;
     s->start = median ? calloc(n, sizeof *s->start) : NULL;
     s->values = median ? malloc(n * sizeof *s->values) : NULL;
     return s->side != NULL && (!median || (s->start != NULL && s->values != NULL));
@@ -250,6 +313,7 @@ static bool kd_scratch_init(kd_scratch *s, const kd_builder *b)
 static void kd_scratch_free(kd_scratch *s)
 {
     free(s->side);
+    free(s->fresh);
     free(s->start);
     free(s->values);
 }
@@ -309,46 +373,49 @@ static size_t kd_axis_start(const kd_event *events, size_t n, int k)
 
 /* Gives each child (0 below, 1 above) the events of t's triangles that
  * are on its side only, in their order, merged with its sorted `fresh`
- * events, so both children's lists come out sorted. The one-sided events
- * are dealt out without branches (each is written to both lists, and only
- * its side's count advances); the fresh ones are then merged in from the
- * back. */
+ * events, so both children's lists come out sorted. After a pass that
+ * counts them, one pass deals them out: before an event, the fresh events
+ * of either side that sort before it are (they are few, so that test is
+ * seldom true); the event itself is written to both lists and only its
+ * side's count advances, which avoids a branch that would be mispredicted
+ * half the time. */
 static bool kd_distribute(const kd_task *t, const uint8_t *side, kd_event *const fresh[2], const size_t nfresh[2],
                           kd_task *child[2])
 {
-    size_t nevents = t->axis_begin[3];
+    size_t nevents = t->axis_begin[3], nkept[4] = {0, 0, 0, 0};
+    for (size_t i = 0; i < nevents; i++)
+        nkept[side[kd_event_tri(t->events[i])]]++;
+    const size_t n[2] = {nkept[KD_BELOW] + nfresh[0], nkept[KD_ABOVE] + nfresh[1]};
     for (int c = 0; c < 2; c++) {
-        child[c]->events = malloc((nevents + nfresh[c] + 1) * sizeof *child[c]->events);
+        /* +1: the last event dealt out is also written to the other list */
+        child[c]->events = malloc((n[c] + 1) * sizeof *child[c]->events);
         if (child[c]->events == NULL) {
             free(child[0]->events);
             return false;
         }
     }
     kd_event *out0 = child[0]->events, *out1 = child[1]->events;
-    size_t n[2] = {0, 0};
+    const kd_event *f0 = fresh[0], *f0_end = f0 + nfresh[0], *f1 = fresh[1], *f1_end = f1 + nfresh[1];
+    kd_event next0 = f0 < f0_end ? *f0 : UINT64_MAX, next1 = f1 < f1_end ? *f1 : UINT64_MAX;
+    size_t n0 = 0, n1 = 0;
     for (size_t i = 0; i < nevents; i++) {
         kd_event e = t->events[i];
+        /* a fresh event never equals a kept one: their triangles differ */
+        for (; next0 < e; next0 = f0 < f0_end ? *f0 : UINT64_MAX)
+            out0[n0++] = *f0++;
+        for (; next1 < e; next1 = f1 < f1_end ? *f1 : UINT64_MAX)
+            out1[n1++] = *f1++;
         uint8_t s = side[kd_event_tri(e)];
-        out0[n[0]] = e;
-        out1[n[1]] = e;
-        n[0] += s == KD_BELOW;
-        n[1] += s == KD_ABOVE;
+        out0[n0] = e;
+        out1[n1] = e;
+        n0 += s == KD_BELOW;
+        n1 += s == KD_ABOVE;
     }
+    while (f0 < f0_end)
+        out0[n0++] = *f0++;
+    while (f1 < f1_end)
+        out1[n1++] = *f1++;
     for (int c = 0; c < 2; c++) {
-        kd_event *out = child[c]->events;
-        const kd_event *f = fresh[c];
-        size_t i = n[c], j = nfresh[c], k = n[c] + nfresh[c];
-        while (j > 0) {
-            if (i > 0 && out[i - 1] > f[j - 1])
-                out[--k] = out[--i];
-            else
-                out[--k] = f[--j];
-        }
-        n[c] += nfresh[c];
-        /* give back what the other side's events did not need */
-        kd_event *shrunk = realloc(out, (n[c] + 1) * sizeof *shrunk);
-        if (shrunk != NULL)
-            child[c]->events = shrunk;
         child[c]->axis_begin[0] = 0;
         child[c]->axis_begin[1] = kd_axis_start(child[c]->events, n[c], 1);
         child[c]->axis_begin[2] = kd_axis_start(child[c]->events, n[c], 2);
@@ -371,38 +438,40 @@ static bool kd_split(const kd_builder *b, kd_scratch *s, const kd_task *t, kd_pl
     size_t nstraddle = kd_classify(t, pl, s->side, &below->ntris, &above->ntris);
 
     /* Clip each straddling triangle (a start event on the plane's axis,
-     * marked both) to both cells: at most 6 new events per side. */
-    kd_event *fresh = malloc((18 * nstraddle + 1) * sizeof *fresh);
-    if (fresh == NULL)
-        return false;
-    kd_event *fresh_below = fresh, *fresh_above = fresh + 6 * nstraddle, *tmp = fresh + 12 * nstraddle;
-    size_t nfb = 0, nfa = 0;
+     * marked both) to both cells, for new events on each side. */
+    size_t need = 14 * nstraddle + 1;
+    if (need > s->fresh_cap) {
+        kd_event *grown = realloc(s->fresh, need * sizeof *grown);
+        if (grown == NULL)
+            return false;
+        s->fresh = grown;
+        s->fresh_cap = need;
+    }
+    kd_event *fresh = s->fresh;
+    kd_event_runs runs[2];
+    kd_runs_init(&runs[0], fresh, nstraddle);
+    kd_runs_init(&runs[1], fresh + 6 * nstraddle, nstraddle);
     const arbor_aabb child_cell[2] = {below->cell, above->cell};
-    bool in[2];
-    arbor_aabb box[2];
+    uint32_t *ntris[2] = {&below->ntris, &above->ntris};
     for (size_t i = t->axis_begin[pl.axis]; i < t->axis_begin[pl.axis + 1]; i++) {
         kd_event e = t->events[i];
         uint32_t tri = kd_event_tri(e);
         if (kd_event_kind(e) != KD_EVENT_START || s->side[tri] != KD_BOTH)
             continue;
+        bool in[2];
+        arbor_aabb box[2];
         kd_clip_split(b, tri, &t->cell, pl, child_cell, in, box);
-        if (in[0]) {
-            nfb += kd_box_events(tri, &box[0], fresh_below + nfb);
-            below->ntris++;
-        }
-        if (in[1]) {
-            nfa += kd_box_events(tri, &box[1], fresh_above + nfa);
-            above->ntris++;
-        }
+        for (int c = 0; c < 2; c++)
+            if (in[c]) {
+                kd_runs_add(&runs[c], tri, &box[c]);
+                (*ntris[c])++;
+            }
     }
-    kd_sort_events(fresh_below, nfb, tmp);
-    kd_sort_events(fresh_above, nfa, tmp);
-    kd_event *const fresh_of[2] = {fresh_below, fresh_above};
-    const size_t nfresh[2] = {nfb, nfa};
+    kd_event *tmp = fresh + 12 * nstraddle;
+    kd_event *const fresh_of[2] = {runs[0].run[0], runs[1].run[0]};
+    const size_t nfresh[2] = {kd_runs_finish(&runs[0], tmp, NULL), kd_runs_finish(&runs[1], tmp, NULL)};
     kd_task *children[2] = {below, above};
-    bool ok = kd_distribute(t, s->side, fresh_of, nfresh, children);
-    free(fresh);
-    return ok;
+    return kd_distribute(t, s->side, fresh_of, nfresh, children);
 }
 
 /* ---- the simple builders' planes -------------------------------------- */
@@ -683,13 +752,21 @@ static void kd_job_run(void *arg)
 }
 
 /* Builds the children of the inner node `inner`: below first (it must
- * follow its parent), then above. Near the root the above child builds on
- * another thread, with its own scratch, into its own buffer. */
+ * follow its parent), then above. When the node may use more than one
+ * thread and both children are big enough to be worth one, the above child
+ * builds on a new thread, with its own scratch, into its own buffer, and
+ * the children share the node's threads; otherwise each child in turn may
+ * use them all. (So an SAH split that only cuts off empty space passes the
+ * threads on to the side that has the work.) */
 static void kd_build_children(const kd_builder *b, kd_scratch *s, const kd_task *parent, size_t inner,
                               kd_task *below, kd_task *above, kd_buffer *out)
 {
-    kd_scratch s2 = {NULL, NULL, NULL};
-    if (parent->depth < b->fork_depth && parent->ntris >= KD_FORK_MIN_TRIS && kd_scratch_init(&s2, b)) {
+    kd_scratch s2 = {NULL, NULL, 0, NULL, NULL};
+    bool fork = parent->threads > 1 && below->ntris >= KD_FORK_MIN_TRIS && above->ntris >= KD_FORK_MIN_TRIS &&
+                kd_scratch_init(&s2, b);
+    if (fork) {
+        above->threads = parent->threads / 2;
+        below->threads = parent->threads - above->threads;
         kd_buffer above_out;
         memset(&above_out, 0, sizeof above_out);
         kd_job jb = {b, s, below, out}, ja = {b, &s2, above, &above_out};
@@ -699,6 +776,7 @@ static void kd_build_children(const kd_builder *b, kd_scratch *s, const kd_task 
         free(above_out.nodes);
         free(above_out.index);
     } else {
+        below->threads = above->threads = parent->threads;
         kd_build_subtree(b, s, below, out);
         kd_set_above(out, inner);
         kd_build_subtree(b, s, above, out);
@@ -752,13 +830,6 @@ static void kd_builder_init(kd_builder *b, const arbor_mesh *m, const arbor_buil
                         fmaxf(fmaxf(fabsf(bounds.lo.y), fabsf(bounds.hi.y)),
                               fmaxf(fabsf(bounds.lo.z), fabsf(bounds.hi.z))));
     b->clip_slack = isfinite(scale) ? scale * 0x1p-20f : 0.0f;
-    /* one level more than the threads need evens out lopsided splits */
-    int threads = o->threads > 0 ? o->threads : arbor_cpu_count();
-    b->fork_depth = 0;
-    while (threads > 1 && (1 << b->fork_depth) < threads)
-        b->fork_depth++;
-    if (b->fork_depth > 0)
-        b->fork_depth++;
 }
 
 /* The box of every triangle of m. */
@@ -773,24 +844,24 @@ static arbor_aabb kd_mesh_bounds(const arbor_mesh *m)
 /* The root task: every triangle's events, sorted once. */
 static bool kd_root_task(const arbor_mesh *m, arbor_aabb bounds, kd_task *root)
 {
-    size_t cap = 6 * (size_t)m->ntris + 1;
-    root->events = malloc(cap * sizeof *root->events);
-    kd_event *tmp = malloc(cap * sizeof *tmp);
+    root->events = malloc((6 * (size_t)m->ntris + 1) * sizeof *root->events);
+    kd_event *tmp = malloc((2 * (size_t)m->ntris + 1) * sizeof *tmp);
     if (root->events == NULL || tmp == NULL) {
         free(root->events);
         free(tmp);
         return false;
     }
-    size_t n = 0;
+    kd_event_runs runs;
+    kd_runs_init(&runs, root->events, m->ntris);
     for (uint32_t i = 0; i < m->ntris; i++) {
         arbor_aabb box = arbor_mesh_tri_bounds(m, i);
-        n += kd_box_events(i, &box, root->events + n);
+        kd_runs_add(&runs, i, &box);
     }
-    kd_sort_events(root->events, n, tmp);
+    kd_runs_finish(&runs, tmp, root->axis_begin);
     free(tmp);
-    kd_task_index_axes(root, n);
     root->ntris = m->ntris;
     root->depth = 0;
+    root->threads = 1;
     root->cell = bounds;
     return true;
 }
@@ -822,7 +893,7 @@ void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats 
     }
     kd_tree *tree = calloc(1, sizeof *tree);
     kd_builder b;
-    kd_scratch s = {NULL, NULL, NULL};
+    kd_scratch s = {NULL, NULL, 0, NULL, NULL};
     kd_buffer out;
     memset(&out, 0, sizeof out);
     kd_task root;
@@ -833,6 +904,7 @@ void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats 
         kd_builder_init(&b, m, o, tree->bounds);
         tree->max_depth = b.max_depth;
         ok = kd_scratch_init(&s, &b) && kd_root_task(m, tree->bounds, &root);
+        root.threads = (uint32_t)(o->threads > 0 ? o->threads : arbor_cpu_count());
     }
     if (ok) {
         kd_build_subtree(&b, &s, &root, &out);

@@ -125,6 +125,7 @@ typedef struct {
     size_t axis_begin[4];
     uint32_t ntris;
     uint32_t depth;
+    uint32_t threads;  /* how many threads the subtree may build on at once */
     arbor_aabb cell;
 } kd_task;
 
@@ -145,7 +146,6 @@ typedef struct {
     float cost_intersect;  /* KI */
     float empty_factor;    /* lambda: a split's cost is multiplied by it when one side is empty */
     float clip_slack;      /* outward rounding of computed clip coordinates (see kd_build.c) */
-    uint32_t fork_depth;   /* nodes above this depth build their children in parallel */
 } kd_builder;
 
 /* The SAH plane for t (kd_sah.c): false when no plane is cheaper than a

@@ -44,10 +44,13 @@ static void kd_sah_sweep(const kd_builder *b, const kd_task *t, int k, float *be
     const kd_event *e = t->events + t->axis_begin[k], *end = t->events + t->axis_begin[k + 1];
     while (e < end) {
         /* the events at one position: ends, then planars, then starts */
-        uint32_t at = kd_event_order(*e), n[4] = {0, 0, 0, 0};
-        for (; e < end && kd_event_order(*e) == at; e++)
-            n[kd_event_kind(*e)]++;
-        uint32_t ending = n[KD_EVENT_END], planar = n[KD_EVENT_PLANAR], starting = n[KD_EVENT_START];
+        uint32_t at = kd_event_order(*e), ending = 0, planar = 0, starting = 0;
+        for (; e < end && kd_event_order(*e) == at; e++) {
+            kd_event_type type = kd_event_kind(*e);
+            ending += type == KD_EVENT_END;
+            planar += type == KD_EVENT_PLANAR;
+            starting += type == KD_EVENT_START;
+        }
         /* now nl counts the triangles that start before p and nr those that
          * end after p or lie after it; the `planar` ones lie in p */
         nr -= planar + ending;
