@@ -382,10 +382,13 @@ static size_t kd_axis_start(const kd_event *events, size_t n, int k)
 static bool kd_distribute(const kd_task *t, const uint8_t *side, kd_event *const fresh[2], const size_t nfresh[2],
                           kd_task *child[2])
 {
-    size_t nevents = t->axis_begin[3], nkept[4] = {0, 0, 0, 0};
-    for (size_t i = 0; i < nevents; i++)
-        nkept[side[kd_event_tri(t->events[i])]]++;
-    const size_t n[2] = {nkept[KD_BELOW] + nfresh[0], nkept[KD_ABOVE] + nfresh[1]};
+    size_t nevents = t->axis_begin[3], kept_below = 0, kept_above = 0;
+    for (size_t i = 0; i < nevents; i++) {
+        uint8_t s = side[kd_event_tri(t->events[i])];
+        kept_below += s == KD_BELOW;
+        kept_above += s == KD_ABOVE;
+    }
+    const size_t n[2] = {kept_below + nfresh[0], kept_above + nfresh[1]};
     for (int c = 0; c < 2; c++) {
         /* +1: the last event dealt out is also written to the other list */
         child[c]->events = malloc((n[c] + 1) * sizeof *child[c]->events);

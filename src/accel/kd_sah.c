@@ -58,8 +58,9 @@ static void kd_sah_sweep(const kd_builder *b, const kd_task *t, int k, float *be
         if (p > lo && p < hi) {
             float pb = 2.0f * (e1 * e2 + (p - lo) * (e1 + e2)) * inv_area;
             float pa = 2.0f * (e1 * e2 + (hi - p) * (e1 + e2)) * inv_area;
+            /* with no triangle in the plane both sides cost the same */
             float cost_below = kd_split_cost(b, pb, pa, nl + planar, nr);
-            float cost_above = kd_split_cost(b, pb, pa, nl, nr + planar);
+            float cost_above = planar ? kd_split_cost(b, pb, pa, nl, nr + planar) : cost_below;
             float cost = cost_below < cost_above ? cost_below : cost_above;
             if (cost < *best) {
                 *best = cost;

@@ -57,8 +57,9 @@ static inline bool kd_clip_root(const kd_tree *tree, const arbor_ray *r, const f
             continue;
         }
         float a = (lo - o[k]) * inv[k], b = (hi - o[k]) * inv[k];
-        t0 = fmaxf(t0, a < b ? a : b);
-        t1 = fminf(t1, a < b ? b : a);
+        float n = a < b ? a : b, f = a < b ? b : a;
+        t0 = n > t0 ? n : t0;
+        t1 = f < t1 ? f : t1;
     }
     t0 = t0 > 0.0f ? t0 * (1.0f - widen) : t0 * (1.0f + widen);
     t1 = t1 > 0.0f ? t1 * (1.0f + widen) : t1 * (1.0f - widen);
@@ -76,6 +77,9 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
     const float o[3] = {r->o.x, r->o.y, r->o.z};
     const float d[3] = {r->d.x + 0.0f, r->d.y + 0.0f, r->d.z + 0.0f};  /* -0 becomes +0 */
     const float inv[3] = {1.0f / d[0], 1.0f / d[1], 1.0f / d[2]};
+    /* which child the ray meets first: below when moving up the axis, and
+     * (d = +0) below when parallel, matching tsplit = +inf / -inf above */
+    const bool below_first[3] = {d[0] >= 0.0f, d[1] >= 0.0f, d[2] >= 0.0f};
     float tnear, tfar;
     if (!kd_clip_root(tree, r, o, inv, &tnear, &tfar))
         return false;
@@ -98,7 +102,7 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
         if (axis != KD_LEAF) {
             float tsplit = (n->split - o[axis]) * inv[axis];
             uint32_t below = at + 1, above = kd_node_high(*n);
-            uint32_t near = d[axis] >= 0.0f ? below : above, far = near == below ? above : below;
+            uint32_t near = below_first[axis] ? below : above, far = below_first[axis] ? above : below;
             if (tsplit > tfar) {
                 at = near;
             } else if (tsplit < tnear) {
