@@ -22,10 +22,11 @@
  * a triangle whose box crosses a cell but which itself misses the cell is
  * never listed there.
  *
- * Nodes go to a kd_buffer in depth-first order. Near the root, when the
- * build has threads to spare, the above child builds on a new thread into a
- * buffer of its own, appended after the below subtree when both are done
- * (kd_buffer_append rebases its child indices and list offsets).
+ * Nodes go to a kd_buffer in depth-first order. When a node may use
+ * several threads and both its children are big, the above child builds on
+ * a new thread into a buffer of its own, appended after the below subtree
+ * when both are done (kd_buffer_append rebases its child indices and list
+ * offsets). The tree is the same whatever the thread count.
  *
  * Default options (0 or <0 in arbor_build_opts):
  *   max_depth      round(8 + 1.3 floor(log2 N)), as pbrt (<= KD_MAX_DEPTH)
@@ -172,18 +173,18 @@ typedef struct {
 static void kd_cut(const kd_clip_vertex *in, int n, int k, float bound, kd_clip_vertex *below, int *nb,
                    kd_clip_vertex *above, int *na)
 {
-    int side[KD_CLIP_MAX];
+    int where[KD_CLIP_MAX];  /* -1 below the plane, 0 on it, 1 above */
     for (int i = 0; i < n; i++)
-        side[i] = (in[i].v[k] > bound) - (in[i].v[k] < bound);
+        where[i] = (in[i].v[k] > bound) - (in[i].v[k] < bound);
     int nbelow = 0, nabove = 0;
     for (int i = 0; i < n; i++) {
         int j = i + 1 == n ? 0 : i + 1;
         const kd_clip_vertex *a = &in[i], *c = &in[j];
-        if (below != NULL && side[i] <= 0)
+        if (below != NULL && where[i] <= 0)
             below[nbelow++] = *a;
-        if (above != NULL && side[i] >= 0)
+        if (above != NULL && where[i] >= 0)
             above[nabove++] = *a;
-        if (side[i] * side[j] < 0) {
+        if (where[i] * where[j] < 0) {
             /* built in registers and stored field by field: a vertex
              * built on the stack and copied whole stalls store forwarding */
             float s = (bound - a->v[k]) / (c->v[k] - a->v[k]);
@@ -845,7 +846,7 @@ static arbor_aabb kd_mesh_bounds(const arbor_mesh *m)
 }
 
 /* The root task: every triangle's events, sorted once. */
-static bool kd_root_task(const arbor_mesh *m, arbor_aabb bounds, kd_task *root)
+static bool kd_root_task(const arbor_mesh *m, arbor_aabb bounds, uint32_t threads, kd_task *root)
 {
     root->events = malloc((6 * (size_t)m->ntris + 1) * sizeof *root->events);
     kd_event *tmp = malloc((2 * (size_t)m->ntris + 1) * sizeof *tmp);
@@ -864,7 +865,7 @@ static bool kd_root_task(const arbor_mesh *m, arbor_aabb bounds, kd_task *root)
     free(tmp);
     root->ntris = m->ntris;
     root->depth = 0;
-    root->threads = 1;
+    root->threads = threads;
     root->cell = bounds;
     return true;
 }
@@ -906,8 +907,8 @@ void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats 
         tree->bounds = kd_mesh_bounds(m);
         kd_builder_init(&b, m, o, tree->bounds);
         tree->max_depth = b.max_depth;
-        ok = kd_scratch_init(&s, &b) && kd_root_task(m, tree->bounds, &root);
-        root.threads = (uint32_t)(o->threads > 0 ? o->threads : arbor_cpu_count());
+        uint32_t threads = (uint32_t)(o->threads > 0 ? o->threads : arbor_cpu_count());
+        ok = kd_scratch_init(&s, &b) && kd_root_task(m, tree->bounds, threads, &root);
     }
     if (ok) {
         kd_build_subtree(&b, &s, &root, &out);

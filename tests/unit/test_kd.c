@@ -216,8 +216,9 @@ static void mesh_fan(arbor_mesh *m)
 /* ---- rays and the truth ----------------------------------------------- */
 
 /* Rays meant to hit the corner cases: origins with coordinates set to a
- * vertex's (the planes SAH and median split at) or to the box's middle
- * (the spatial builder's first planes); directions along an axis, toward a
+ * vertex's (the planes SAH splits at), to a triangle's box centre (where
+ * median and mean split), or to a dyadic fraction of the box (the spatial
+ * builder's planes), or left random; directions along an axis, toward a
  * triangle, or toward one with a component zeroed (+0 or -0). */
 static arbor_ray *special_rays(const arbor_mesh *m, size_t n, uint64_t seed)
 {
@@ -225,7 +226,7 @@ static arbor_ray *special_rays(const arbor_mesh *m, size_t n, uint64_t seed)
     test_rng_seed(&g, seed);
     arbor_ray *rays = malloc(n * sizeof *rays);
     TEST_ASSERT_NOT_NULL(rays);
-    arbor_vec3 lo = m->bounds.lo, ext = aabb_extent(m->bounds), mid = aabb_center(m->bounds);
+    arbor_vec3 lo = m->bounds.lo, ext = aabb_extent(m->bounds);
     for (size_t i = 0; i < n; i++) {
         arbor_vec3 o = vec3(lo.x + ext.x * (1.5f * test_rng_float(&g) - 0.25f),
                             lo.y + ext.y * (1.5f * test_rng_float(&g) - 0.25f),
@@ -233,10 +234,17 @@ static arbor_ray *special_rays(const arbor_mesh *m, size_t n, uint64_t seed)
         uint32_t tri = m->ntris ? test_rng_u32(&g) % m->ntris : 0;
         for (int k = 0; k < 3; k++) {
             uint32_t pick = test_rng_u32(&g) % 4;
-            if (pick == 0 && m->nverts)
+            if (pick == 0 && m->nverts) {
                 o = with_axis(o, k, vec3_axis(m->verts[test_rng_u32(&g) % m->nverts], k));
-            else if (pick == 1)
-                o = with_axis(o, k, vec3_axis(mid, k));
+            } else if (pick == 1 && m->ntris) {
+                arbor_aabb box = arbor_mesh_tri_bounds(m, test_rng_u32(&g) % m->ntris);
+                o = with_axis(o, k, vec3_axis(aabb_center(box), k));
+            } else if (pick == 2) {
+                /* the middle, a quarter, an eighth, ... of the box */
+                int level = 1 + (int)(test_rng_u32(&g) % 5);
+                float frac = (float)(2 * (test_rng_u32(&g) % (1u << (level - 1))) + 1) / (float)(1u << level);
+                o = with_axis(o, k, vec3_axis(lo, k) + vec3_axis(ext, k) * frac);
+            }
         }
         arbor_vec3 d = vec3(0, 0, 0);
         int k = (int)(test_rng_u32(&g) % 3);
