@@ -52,6 +52,8 @@ typedef struct {
     uint32_t flags;      /* axis or KD_LEAF | above-child index or triangle count << 2 */
 } kd_node;
 
+_Static_assert(sizeof(kd_node) == 8, "kd nodes are 8 bytes");
+
 static inline uint32_t kd_node_kind(kd_node n) { return n.flags & 3u; }
 static inline uint32_t kd_node_high(kd_node n) { return n.flags >> 2; }
 
