@@ -82,6 +82,14 @@ static bool in_ring(const arbor_job *j)
 }
 
 /* Marks j cancelled (lock held); queues it for a worker if nothing of it runs. */
+/* The last reference is gone: tell the owner, then free. */
+static void job_destroy(arbor_job *j)
+{
+    if (j->release != NULL)
+        j->release(j->ctx);
+    free(j);
+}
+
 static void cancel_locked(arbor_pool *p, arbor_job *j)
 {
     if (j->finishing)
@@ -108,8 +116,13 @@ static void finish_job(arbor_pool *p, arbor_job *j)
     pthread_mutex_lock(&p->lock);
     j->finished = true;
     pthread_cond_broadcast(&p->finished);
+    /* Drop the pool's reference before unlocking: waiters need the lock to
+     * see `finished`, so when arbor_job_wait returns only the caller's
+     * references are left and its release is the one that frees the job. */
+    bool last = atomic_fetch_sub(&j->refs, 1) == 1;
     pthread_mutex_unlock(&p->lock);
-    arbor_job_release(j);
+    if (last)
+        job_destroy(j);
     pthread_mutex_lock(&p->lock);
 }
 
@@ -268,9 +281,6 @@ bool arbor_job_wait(arbor_job *j)
 
 void arbor_job_release(arbor_job *j)
 {
-    if (j == NULL || atomic_fetch_sub(&j->refs, 1) != 1)
-        return;
-    if (j->release != NULL)
-        j->release(j->ctx);
-    free(j);
+    if (j != NULL && atomic_fetch_sub(&j->refs, 1) == 1)
+        job_destroy(j);
 }
