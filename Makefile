@@ -89,13 +89,16 @@ models: $(BUILD)/arbord
 	@mkdir -p $(BUILD)/models-large
 	$(BUILD)/arbord gen --all $(if $(SIZE),--size $(SIZE) --dir $(BUILD)/models-large,--dir models)
 
+# The figures of docs/BENCH.md (raw output and tables in build/bench/).
 bench: $(BUILD)/arbord
-	$(BUILD)/arbord bench $(foreach m,$(wildcard $(SHARED)/models/*.obj $(SHARED)/models/*.obj.gz),--model $(m))
+	SHARED=$(SHARED) scripts/bench.sh
 
+# The objects that test ARBOR_HAVE_EMBREE are rebuilt, in case arbord was built before Embree was installed.
 bench-embree:
 	@scripts/deps.sh --embree
+	rm -f $(BUILD)/obj/src/cli/embree_peer.o $(BUILD)/obj/src/cli/cmd_bench.o $(BUILD)/arbord
 	$(MAKE) EMBREE=1 $(BUILD)/arbord
-	$(BUILD)/arbord bench --embree $(foreach m,$(wildcard $(SHARED)/models/*.obj $(SHARED)/models/*.obj.gz),--model $(m))
+	SHARED=$(SHARED) scripts/bench.sh --embree
 
 asan:
 	$(MAKE) BUILD=build/asan OPT="-O1 -g -fsanitize=address,undefined -fno-omit-frame-pointer" test

@@ -3,10 +3,11 @@
 docs/BENCH.md: the study's tables 1-4 beside ours, the ray sets of every
 model with Embree's ratios, SAH costs, and the k-d SAH build's N log N check.
 
-    scripts/bench_tables.py ALL_THREADS.json ONE_THREAD.json > tables.md
+    scripts/bench_tables.py ALL_THREADS.json ONE_THREAD.json KD_STATS.json > tables.md
 
 ALL_THREADS.json: every kind and builder on every model, --embree, all cores.
 ONE_THREAD.json: the sah rows and Embree at --threads 1.
+KD_STATS.json: `arbord stats --accel kd --builder sah --json` lines (for refs).
 """
 import json
 import math
@@ -109,25 +110,34 @@ def sah_cost_table(rows):
     return out
 
 
-def nlogn_table(rows):
-    out = ["| model | N triangles | kd sah build ms | build ns / (N log2 N) |", "|---|---:|---:|---:|"]
+def nlogn_table(rows, stats):
+    """kd sah build time over N log2 N, and over R log2 R where R is the
+    number of triangle references (from `arbord stats --json`): a k-d tree
+    duplicates straddling triangles, and the sweep's work grows with R."""
+    out = ["| model | N triangles | R refs | R / N | kd sah build ms | ns / (N log2 N) | ns / (R log2 R) |",
+           "|---|---:|---:|---:|---:|---:|---:|"]
     kd = sorted((r for r in rows if r["accel"] == "kd" and r["builder"] == "sah"), key=lambda r: r["triangles"])
     for r in kd:
-        n = r["triangles"]
-        out.append(f"| {model_name(r)} | {n:,} | {fmt(r['build_ms'])} | {r['build_ms'] / (n * math.log2(n)) * 1e6:.1f} |")
+        n, ms = r["triangles"], r["build_ms"]
+        st = find(stats, model_name(r), "kd", "sah")
+        refs = st["refs"] if st else None
+        per_r = f"{ms / (refs * math.log2(refs)) * 1e6:.1f}" if refs else "-"
+        out.append(f"| {model_name(r)} | {n:,} | {fmt(refs)} | {fmt(refs / n) if refs else '-'} | {fmt(ms)}"
+                   f" | {ms / (n * math.log2(n)) * 1e6:.1f} | {per_r} |")
     return out
 
 
 def main():
     all_rows = load(sys.argv[1])
     one_rows = load(sys.argv[2]) if len(sys.argv) > 2 else []
+    stats = load(sys.argv[3]) if len(sys.argv) > 3 else []
     threads = max(r["threads"] for r in all_rows)
     lines = ["## The study's tables", ""] + study_tables(all_rows)
     lines += ["## Ray sets, all cores", ""] + rayset_table(all_rows, threads) + [""]
     if one_rows:
         lines += ["## Ray sets, one thread", ""] + rayset_table(one_rows, 1) + [""]
     lines += ["## SAH cost of every builder", ""] + sah_cost_table(all_rows) + [""]
-    lines += ["## k-d SAH build: N log N", ""] + nlogn_table(all_rows) + [""]
+    lines += ["## k-d SAH build: N log N", ""] + nlogn_table(all_rows, stats) + [""]
     print("\n".join(lines))
 
 
