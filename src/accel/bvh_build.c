@@ -34,6 +34,7 @@
  * it is built into the slot its worst case would leave free, s + 2 n_left,
  * and moved down next to the left subtree after both finish.
  */
+#include <emmintrin.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -216,17 +217,6 @@ typedef struct {
     uint32_t count[3][BVH_SAH_BINS];
 } sah_bins;
 
-/* The bin of centroid coordinate c among bins last + 1 bins from lo, each
- * 1 / scale wide. Clamped without branches (binning is the build's inner
- * loop); a NaN lands in bin 0. */
-static inline uint32_t sah_bin_index(float c, float lo, float scale, float last)
-{
-    float f = (c - lo) * scale;
-    f = f > 0.0f ? f : 0.0f;
-    f = f < last ? f : last;
-    return (uint32_t)f;
-}
-
 /* The cheapest plane of one axis' bins by the sum A(l) N(l) + A(r) N(r):
  * sets *plane (the plane after bin *plane) and returns the sum, or INFINITY
  * if no plane has triangles on both sides. Planes after an empty bin split
@@ -292,14 +282,24 @@ static bool sah_choose(const bvh_builder *B, uint32_t b, uint32_t e, float area,
             bins.count[k][j] = 0;
         }
     }
-    float last = (float)(nbins - 1);
+    /* The binning loop, the build's hottest: the three axes' bin indices in
+     * one SSE computation, (c - lo) * scale clamped to [0, nbins - 1] without
+     * branches (maxps returns 0 for a NaN, which lands in bin 0), and the
+     * triangle's box loaded once for the three bins it grows. */
+    const __m128 lo4 = _mm_loadu_ps(lo), scale4 = _mm_setr_ps(scale[0], scale[1], scale[2], 0.0f);
+    const __m128 last4 = _mm_set1_ps((float)(nbins - 1));
     for (uint32_t i = b; i < e; i++) {
         uint32_t t = B->idx[i];
-        const float *c = &B->centroid[4 * (size_t)t];
+        __m128 f = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(&B->centroid[4 * (size_t)t]), lo4), scale4);
+        f = _mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), last4);
+        uint32_t j[4];
+        _mm_storeu_si128((__m128i *)j, _mm_cvttps_epi32(f));
+        const __m128 tlo = _mm_loadu_ps(B->tri_box[t].lo), thi = _mm_loadu_ps(B->tri_box[t].hi);
         for (int k = 0; k < 3; k++) {
-            uint32_t j = sah_bin_index(c[k], lo[k], scale[k], last);
-            bins.count[k][j]++;
-            box_add(&bins.box[k][j], &B->tri_box[t]);
+            build_box *bin = &bins.box[k][j[k]];
+            bins.count[k][j[k]]++;
+            _mm_storeu_ps(bin->lo, _mm_min_ps(_mm_loadu_ps(bin->lo), tlo));
+            _mm_storeu_ps(bin->hi, _mm_max_ps(_mm_loadu_ps(bin->hi), thi));
         }
     }
     float best = INFINITY;
