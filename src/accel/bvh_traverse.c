@@ -10,9 +10,9 @@
  * slab test, two 4-lane ones without AVX); the ray descends into the nearer
  * one it enters (any-hit: the left one) and pushes the other, with its entry
  * distance, on a small stack. A popped node whose entry lies beyond the
- * closest hit so far is skipped. Triangles are tested with bvh_triangle,
- * the watertight arbor_triangle_intersect's arithmetic on the same ray
- * values brute force uses, so the trees find the same hits.
+ * closest hit so far is skipped. Triangles are tested with the watertight
+ * arbor_triangle_intersect, on the same ray values brute force uses, so the
+ * trees find the same hits.
  */
 #include <immintrin.h>
 
@@ -124,48 +124,6 @@ static inline void bvh_box_pair(const bvh_node *a, const bvh_node *b, const bvh_
 static inline float bvh_minf(float a, float b) { return _mm_cvtss_f32(_mm_min_ss(_mm_set_ss(a), _mm_set_ss(b))); }
 static inline float bvh_maxf(float a, float b) { return _mm_cvtss_f32(_mm_max_ss(_mm_set_ss(a), _mm_set_ss(b))); }
 
-/* arbor_triangle_intersect for a ray in its own axis order (see bvh_traverse:
- * the origin o and vertices a, b, c are already permuted to (kx, ky, kz)),
- * with the same arithmetic in the same order, so the same t, u, v. It differs
- * only in control flow: the edge functions' zero and sign tests are combined
- * with bitwise operators, so the common case (the ray misses) takes a single
- * well-predicted branch instead of several data-dependent ones. */
-static inline bool bvh_triangle(const float o[3], const arbor_ray_prep *p, float tmin, const float a[3],
-                                const float b[3], const float c[3], float tmax, float *t_out, float *u_out,
-                                float *v_out)
-{
-    const float Akz = a[2] - o[2], Bkz = b[2] - o[2], Ckz = c[2] - o[2];
-    const float Ax = (a[0] - o[0]) - p->sx * Akz;
-    const float Ay = (a[1] - o[1]) - p->sy * Akz;
-    const float Bx = (b[0] - o[0]) - p->sx * Bkz;
-    const float By = (b[1] - o[1]) - p->sy * Bkz;
-    const float Cx = (c[0] - o[0]) - p->sx * Ckz;
-    const float Cy = (c[1] - o[1]) - p->sy * Ckz;
-    float U = Cx * By - Cy * Bx;
-    float V = Ax * Cy - Ay * Cx;
-    float W = Bx * Ay - By * Ax;
-    if ((U == 0.0f) | (V == 0.0f) | (W == 0.0f)) {
-        /* on an edge in single precision: decide it exactly in double */
-        U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
-        V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
-        W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
-    }
-    if (((U < 0.0f) | (V < 0.0f) | (W < 0.0f)) & ((U > 0.0f) | (V > 0.0f) | (W > 0.0f)))
-        return false;
-    const float det = U + V + W;
-    if (det == 0.0f)
-        return false;
-    const float T = U * p->sz * Akz + V * p->sz * Bkz + W * p->sz * Ckz;
-    const float inv = 1.0f / det;
-    const float t = T * inv;
-    if (!(t > tmin && t < tmax))
-        return false;
-    *t_out = t;
-    *u_out = V * inv;
-    *v_out = W * inv;
-    return true;
-}
-
 /* The closest hit (any_hit false) or the first found (any_hit true) in
  * (r->tmin, r->tmax); fills *h on a hit unless h is NULL. counts, when not
  * NULL, gets the node boxes tested and the triangles tested. */
@@ -185,7 +143,8 @@ static inline __attribute__((always_inline)) bool bvh_traverse(const bvh_tree *t
      * It does the same arithmetic on the same values, so the same hits. */
     const int kx = prep.kx, ky = prep.ky, kz = prep.kz;
     const float o[3] = {r->o.x, r->o.y, r->o.z};
-    const float o3[3] = {o[kx], o[ky], o[kz]};
+    const arbor_ray rp = {vec3(o[kx], o[ky], o[kz]), r->tmin, vec3(0.0f, 0.0f, 1.0f), r->tmax};
+    const arbor_ray_prep pp = {0, 1, 2, prep.sx, prep.sy, prep.sz};
     float tmax = r->tmax;
     if (counts)
         counts->nodes++;
@@ -218,12 +177,11 @@ static inline __attribute__((always_inline)) bool bvh_traverse(const bvh_tree *t
             uint32_t near = swap ? right : left, far = swap ? left : right;
             float t_near = swap ? t_right : t_left, t_far = swap ? t_left : t_right;
             if (t_near != INFINITY) {
-                /* The far child is written unconditionally and kept only if
-                 * entered: whether it is entered is a coin toss the branch
-                 * predictor often loses, and nothing waits on the count. */
-                stack[sp].node = far;
-                stack[sp].t = t_far;
-                sp += t_far != INFINITY;
+                if (t_far != INFINITY) {
+                    stack[sp].node = far;
+                    stack[sp].t = t_far;
+                    sp++;
+                }
                 ni = near;
                 continue;
             }
@@ -233,9 +191,9 @@ static inline __attribute__((always_inline)) bool bvh_traverse(const bvh_tree *t
                 float tt, u, w;
                 if (counts)
                     counts->tris++;
-                const float a[3] = {v[kx], v[ky], v[kz]}, b[3] = {v[3 + kx], v[3 + ky], v[3 + kz]},
-                            c[3] = {v[6 + kx], v[6 + ky], v[6 + kz]};
-                if (bvh_triangle(o3, &prep, r->tmin, a, b, c, tmax, &tt, &u, &w)) {
+                arbor_vec3 a = vec3(v[kx], v[ky], v[kz]), b = vec3(v[3 + kx], v[3 + ky], v[3 + kz]),
+                           c = vec3(v[6 + kx], v[6 + ky], v[6 + kz]);
+                if (arbor_triangle_intersect(&rp, &pp, a, b, c, tmax, &tt, &u, &w)) {
                     if (any_hit)
                         return true;
                     found = true;
