@@ -38,6 +38,9 @@ UNITY    = build/deps/unity/src
 TEST_SUPPORT_OBJ = $(BUILD)/obj/tests/unit/support.o $(BUILD)/obj/unity.o
 
 .PHONY: all deps run test unit models bench bench-embree asan clean
+# Keep intermediate objects: deleting them would also print "rm ..." after the
+# test summary, which must stay the last line of make test.
+.SECONDARY:
 .DEFAULT_GOAL := all
 
 all: $(BUILD)/arbord
