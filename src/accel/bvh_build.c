@@ -86,9 +86,6 @@ typedef struct {
     double inner_area, leaf_area;  /* sum of A(n) over inner nodes; of A(l) N(l) over leaves */
 } bvh_tally;
 
-static inline float min_f(float a, float b) { return a < b ? a : b; }
-static inline float max_f(float a, float b) { return a > b ? a : b; }
-
 static inline void box_empty(build_box *b)
 {
     for (int a = 0; a < 3; a++) {
@@ -101,8 +98,8 @@ static inline void box_empty(build_box *b)
 static inline void box_add(build_box *b, const build_box *t)
 {
     for (int a = 0; a < 4; a++) {
-        b->lo[a] = min_f(b->lo[a], t->lo[a]);
-        b->hi[a] = max_f(b->hi[a], t->hi[a]);
+        b->lo[a] = arbor_minf(b->lo[a], t->lo[a]);
+        b->hi[a] = arbor_maxf(b->hi[a], t->hi[a]);
     }
 }
 
@@ -110,8 +107,8 @@ static inline void box_add(build_box *b, const build_box *t)
 static inline void box_add_point(build_box *b, const float *p)
 {
     for (int a = 0; a < 4; a++) {
-        b->lo[a] = min_f(b->lo[a], p[a]);
-        b->hi[a] = max_f(b->hi[a], p[a]);
+        b->lo[a] = arbor_minf(b->lo[a], p[a]);
+        b->hi[a] = arbor_maxf(b->hi[a], p[a]);
     }
 }
 
@@ -169,7 +166,7 @@ static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, int axis
 
 static float median_of_three(float a, float b, float c)
 {
-    return max_f(min_f(a, b), min_f(max_f(a, b), c));
+    return arbor_maxf(arbor_minf(a, b), arbor_minf(arbor_maxf(a, b), c));
 }
 
 /* Quickselect (Hoare's FIND): reorders idx[b, e) so that the triangle with
