@@ -489,8 +489,7 @@ static void tally_to_stats(const bvh_tally *t, const bvh_tree *tree, double root
         s->mean_leaf_depth = (double)t->leaf_depth_sum / (double)t->leaves;
         s->mean_tris_per_leaf = (double)t->refs / (double)t->leaves;
     }
-    s->bytes = (uint64_t)tree->nnodes * sizeof(bvh_node) +
-               (uint64_t)tree->ntris * (3 * sizeof(arbor_vec3) + sizeof(uint32_t));
+    s->bytes = bvh_tree_bytes(tree);
     s->sah_cost = root_area > 0.0 ? (t->inner_area + t->leaf_area) / root_area : (double)(t->inner + t->refs);
 }
 
@@ -499,13 +498,15 @@ void bvh_tree_free(bvh_tree *t)
     if (t == NULL)
         return;
     free(t->nodes);
-    free(t->tri_verts);
     free(t->tri_index);
+    free(t->wide);
+    free(t->packs);
+    free(t->pack_tri);
     free(t);
 }
 
-/* A linear pass over mesh triangles [b, e) (precomputing boxes, or copying
- * vertices into leaf order), which large meshes split between two threads. */
+/* A linear pass over mesh triangles [b, e), which large meshes split between
+ * two threads. */
 typedef struct {
     const arbor_mesh *m;
     build_box *tri_box;
@@ -531,15 +532,6 @@ static void precompute_triangles(void *arg)
             p->centroid[4 * (size_t)t + a] = 0.5f * (box->lo[a] + box->hi[a]);
         p->tree->tri_index[t] = t;
     }
-}
-
-/* The vertices of the triangles in leaf order, for the traversal. */
-static void copy_leaf_vertices(void *arg)
-{
-    const tri_pass *p = arg;
-    arbor_vec3 *v = p->tree->tri_verts;
-    for (uint32_t i = p->b; i < p->e; i++)
-        arbor_mesh_tri(p->m, p->tree->tri_index[i], &v[3 * (size_t)i], &v[3 * (size_t)i + 1], &v[3 * (size_t)i + 2]);
 }
 
 /* Runs pass over all triangles, in two halves on two threads when parallel. */
@@ -607,8 +599,7 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
     float *centroid = malloc(4 * (size_t)n * sizeof *centroid);
     bvh_node *scratch = aligned_alloc(64, ((2 * (size_t)n - 1) * sizeof(bvh_node) + 63) & ~(size_t)63);
     tree->tri_index = malloc(n * sizeof *tree->tri_index);
-    tree->tri_verts = malloc(3 * (size_t)n * sizeof *tree->tri_verts);
-    if (tri_box == NULL || centroid == NULL || scratch == NULL || tree->tri_index == NULL || tree->tri_verts == NULL)
+    if (tri_box == NULL || centroid == NULL || scratch == NULL || tree->tri_index == NULL)
         goto nomem;
     bool parallel = B.fork_depth > 0 && n >= BVH_PARALLEL_PASS_TRIS;
     tri_pass pass = {m, tri_box, centroid, tree, 0, n};
@@ -623,11 +614,13 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
     scratch = NULL;
     if (tree->nodes == NULL)
         goto nomem;
-    tri_pass_run(copy_leaf_vertices, pass, parallel);
-    tally_to_stats(&tally, tree, aabb_area(bvh_node_box(&tree->nodes[0])), stats);
     free(tri_box);
     free(centroid);
-    free(scratch);
+    if (!bvh_wide_build(tree, m, e)) {
+        bvh_tree_free(tree);
+        return NULL;
+    }
+    tally_to_stats(&tally, tree, aabb_area(bvh_node_box(&tree->nodes[0])), stats);
     return tree;
 nomem:
     free(tri_box);

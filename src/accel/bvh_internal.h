@@ -3,25 +3,42 @@
  * builders (bvh_build.c), its traversal (bvh_traverse.c) and its ops table
  * and validator (bvh.c). Private to src/accel.
  *
- * Layout. The nodes form one flat array in depth-first order: the root is
+ * The tree is kept twice, in two layouts with different jobs.
+ *
+ * The binary tree (bvh_node) is what the builders make and what the
+ * statistics and the validator describe: the study's measures are of this
+ * tree. Its nodes form one flat array in depth-first order: the root is
  * node 0, an inner node's left child is the node right after it, and only
- * the right child's index is stored. Each node is 32 bytes (two per 64-byte
- * cache line): its box and two words,
+ * the right child's index is stored. Each node is 32 bytes: its box and two
+ * words,
  *
  *     inner node: index = right child, count = 0
  *     leaf:       index = first triangle in leaf order, count = triangles (> 0)
  *
- * A leaf's triangles are the range [index, index + count) of two arrays kept
- * in leaf order: tri_verts (their three vertices, copied from the mesh so a
- * leaf's triangles are contiguous in memory) and tri_index (their indices in
- * the mesh, which hits report).
+ * A leaf's triangles are the range [index, index + count) of tri_index, the
+ * mesh indices of the triangles in leaf order.
+ *
+ * The wide tree (bvh_wide.c) is what rays traverse: the binary tree
+ * collapsed into nodes of up to BVH_WIDTH children whose boxes one SIMD slab
+ * test checks at once, with leaf triangles in packs of BVH_WIDTH that one
+ * SIMD triangle test checks at once. A wide node is 128 bytes (two cache
+ * lines): its children's boxes as six rows of BVH_WIDTH lanes, and a 64-bit
+ * reference per child,
+ *
+ *     inner child: the wide node's index (never 0, the root)
+ *     leaf child:  BVH_REF_LEAF | triangles << 32 | first pack
+ *     empty slot:  0, with an empty box (lo +inf, hi -inf) that no ray enters
+ *
+ * A leaf's triangles fill its packs in order; the last pack's unused lanes
+ * hold NaN vertices (no ray hits them) and the triangle index UINT32_MAX.
+ * Wide node 0 is the root; wide nodes and packs are in depth-first order.
  *
  * Invariants (bvh.c's validator checks them all): every mesh triangle is in
- * exactly one leaf; leaves cover [0, ntris) in depth-first order; a child's
- * box lies inside its parent's; a leaf's box contains its triangles; the
- * depth of every node is below BVH_MAX_DEPTH, so a traversal stack of
- * BVH_MAX_DEPTH entries cannot overflow. A mesh without triangles has no
- * nodes at all.
+ * exactly one leaf of each layout; binary leaves cover [0, ntris) in
+ * depth-first order; a child's box lies inside its parent's; a leaf's box
+ * contains its triangles; the depth of every node is below BVH_MAX_DEPTH,
+ * so a traversal stack of BVH_MAX_DEPTH entries per pushed sibling cannot
+ * overflow. A mesh without triangles has no nodes at all.
  */
 #ifndef ARBOR_BVH_INTERNAL_H
 #define ARBOR_BVH_INTERNAL_H
@@ -41,13 +58,35 @@ typedef struct {
 
 _Static_assert(sizeof(bvh_node) == 32, "a node is half a cache line");
 
+#define BVH_WIDTH 4
+#define BVH_REF_LEAF ((uint64_t)1 << 63)
+
 typedef struct {
-    bvh_node *nodes;       /* nnodes, depth-first */
+    float box[6][BVH_WIDTH];      /* rows lo x, y, z, hi x, y, z; lane c is child c */
+    uint64_t child[BVH_WIDTH];    /* references, as above */
+} bvh_wide_node;
+
+_Static_assert(sizeof(bvh_wide_node) == 128, "a wide node is two cache lines");
+
+typedef struct {
+    float v[3][3][BVH_WIDTH];     /* vertex a, b, c; axis x, y, z; lane = triangle */
+} bvh_tri_pack;
+
+typedef struct {
+    bvh_node *nodes;          /* nnodes, depth-first */
     uint32_t nnodes;
     uint32_t ntris;
-    arbor_vec3 *tri_verts; /* 3 * ntris vertices, in leaf order */
-    uint32_t *tri_index;   /* ntris mesh triangle indices, in leaf order */
+    uint32_t *tri_index;      /* ntris mesh triangle indices, in leaf order */
+    bvh_wide_node *wide;      /* nwide, depth-first, 64-byte aligned */
+    uint32_t nwide;
+    uint32_t npacks;
+    bvh_tri_pack *packs;      /* npacks, 64-byte aligned */
+    uint32_t *pack_tri;       /* BVH_WIDTH per pack: mesh triangle of each lane */
 } bvh_tree;
+
+static inline bool bvh_ref_is_leaf(uint64_t ref) { return (ref & BVH_REF_LEAF) != 0; }
+static inline uint32_t bvh_ref_index(uint64_t ref) { return (uint32_t)ref; }
+static inline uint32_t bvh_ref_tris(uint64_t ref) { return (uint32_t)(ref >> 32) & 0x7fffffffu; }
 
 /* bvh_build.c: builds the tree for o->builder and fills every statistic but
  * build_ms. NULL (e filled) when memory runs out. */
@@ -57,6 +96,13 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
 bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h);
 bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
 bool bvh_occluded(const void *impl, const arbor_ray *r);
+
+/* bvh_wide.c: builds t's wide tree from its binary tree (false, e filled,
+ * when memory runs out), and checks it against the mesh. */
+bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, arbor_err *e);
+bool bvh_wide_validate(const bvh_tree *t, const arbor_mesh *m, arbor_err *e);
+/* The bytes both layouts hold, for arbor_tree_stats.bytes. */
+uint64_t bvh_tree_bytes(const bvh_tree *t);
 
 void bvh_tree_free(bvh_tree *t);
 

@@ -1,216 +1,250 @@
 /*
- * bvh_traverse.c - closest-hit and any-hit queries through a built BVH.
+ * bvh_traverse.c - closest-hit and any-hit queries through the wide tree
+ * (bvh_internal.h, bvh_wide.c).
  *
  * One traversal (bvh_traverse) serves all three queries. It is inlined into
  * each with constant arguments: `any_hit` chooses stopping at the first hit,
  * and `counts` is a compile-time NULL in the two uncounted queries, so their
  * counting code disappears.
  *
- * At an inner node both children's boxes are tested at once (one 8-lane AVX
- * slab test, two 4-lane ones without AVX); the ray descends into the nearer
- * one it enters (any-hit: the left one) and pushes the other, with its entry
- * distance, on a small stack. A popped node whose entry lies beyond the
- * closest hit so far is skipped. Triangles are tested with the watertight
- * arbor_triangle_intersect, on the same ray values brute force uses, so the
- * trees find the same hits.
+ * At a wide node one 4-lane slab test checks every child's box. The ray goes
+ * on into the nearest child it enters and pushes the others, farthest first,
+ * with their entry distances, on a stack; a popped entry whose distance lies
+ * beyond the closest hit so far is skipped. An any-hit query needs no order
+ * and takes the children as they come. A leaf's packs are tested four
+ * triangles per step (pack_test), with the arithmetic of
+ * arbor_triangle_intersect lane by lane, so every tree finds the hits brute
+ * force finds, to the bit.
  */
 #include <immintrin.h>
 
 #include "bvh_internal.h"
-
-_Static_assert(sizeof(arbor_vec3) == 3 * sizeof(float), "tri_verts is read as an array of floats");
-
-/* Per-ray constants of the slab test, in SSE lanes x, y, z (lane 3 unused):
- * the origin, the inverse direction (+-inf for a zero component: see
- * bvh_box_pair) and `neg`, all ones in the lanes whose direction is negative,
- * where the ray enters a slab through its hi plane and leaves through lo. */
-typedef struct {
-    __m128 org, inv, neg;
-    float tmin;
-} bvh_ray;
 
 /* 1 + 2 gamma(3) with gamma(n) = n u / (1 - n u), u = 2^-24: scaling exit
  * distances by it makes the slab test conservative despite rounding (Ize,
  * "Robust BVH Ray Traversal", JCGT 2013), so no box a ray touches is culled. */
 #define BVH_EXIT_SCALE 1.0000003576278687f
 
+/* Per-ray constants, each broadcast to all lanes. Box test: the origin, the
+ * inverse direction (+-inf for a zero component) and, per axis, the row of
+ * a node's boxes the ray enters through (lo, or hi when the direction is
+ * negative) and the row it leaves through. Triangle test (the watertight
+ * test's, see ray.h): the axis permutation k, the origin in that order and
+ * the shear constants. */
+typedef struct {
+    __m128 org[3], inv[3];
+    int near[3], far[3];
+    __m128 tmin;
+    int k[3];
+    __m128 korg[3], shear[3];
+} bvh_ray;
+
 static inline void bvh_ray_setup(bvh_ray *q, const arbor_ray *r)
 {
-    q->org = _mm_setr_ps(r->o.x, r->o.y, r->o.z, 0.0f);
-    q->inv = _mm_div_ps(_mm_set1_ps(1.0f), _mm_setr_ps(r->d.x, r->d.y, r->d.z, 1.0f));
-    q->neg = _mm_cmplt_ps(q->inv, _mm_setzero_ps());
-    q->tmin = r->tmin;
+    const float o[3] = {r->o.x, r->o.y, r->o.z}, d[3] = {r->d.x, r->d.y, r->d.z};
+    for (int a = 0; a < 3; a++) {
+        float inv = 1.0f / d[a];
+        q->org[a] = _mm_set1_ps(o[a]);
+        q->inv[a] = _mm_set1_ps(inv);
+        q->near[a] = inv < 0.0f ? a + 3 : a;
+        q->far[a] = inv < 0.0f ? a : a + 3;
+    }
+    q->tmin = _mm_set1_ps(r->tmin);
+    arbor_ray_prep p;
+    arbor_ray_prepare(r, &p);
+    q->k[0] = p.kx;
+    q->k[1] = p.ky;
+    q->k[2] = p.kz;
+    for (int a = 0; a < 3; a++)
+        q->korg[a] = _mm_set1_ps(o[q->k[a]]);
+    q->shear[0] = _mm_set1_ps(p.sx);
+    q->shear[1] = _mm_set1_ps(p.sy);
+    q->shear[2] = _mm_set1_ps(p.sz);
 }
 
-/* A node's planes as two vectors of lanes x, y, z: lo from bounds[0..3) and
- * hi from bounds[3..6). Lane 3 holds another bound (never the index or count,
- * whose bits could be denormals, slow in arithmetic); nothing reads it. */
-static inline __m128 bvh_lo(const bvh_node *n) { return _mm_loadu_ps(n->bounds); }
-static inline __m128 bvh_hi(const bvh_node *n)
+/* The slab test of a node's children. Per axis the entry and exit distances
+ * are (plane - o) / d on the near and far plane, the exit scaled up by
+ * BVH_EXIT_SCALE; then entry = max(entries, tmin), exit = min(exits, tmax),
+ * folded with max/minps, which return their second operand when the first
+ * is NaN: a zero direction component with the origin on one of that axis'
+ * planes gives 0 * inf = NaN, and the slab then leaves the interval as it
+ * was (the ray runs inside the plane). Returns the mask of children entered,
+ * entry <= exit, and each one's entry distance in *entry. Empty slots
+ * (lo +inf, hi -inf) give entry +inf and exit -inf on every axis. */
+static inline int wide_boxes(const bvh_wide_node *n, const bvh_ray *q, __m128 tmax, __m128 *entry)
 {
-    __m128 v = _mm_loadu_ps(n->bounds + 2); /* lo z, hi x, hi y, hi z */
-    return _mm_shuffle_ps(v, v, _MM_SHUFFLE(0, 3, 2, 1));
+    const __m128 scale = _mm_set1_ps(BVH_EXIT_SCALE);
+    __m128 t_in = q->tmin, t_out = tmax;
+    for (int a = 2; a >= 0; a--) {
+        __m128 near = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n->box[q->near[a]]), q->org[a]), q->inv[a]);
+        __m128 far = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n->box[q->far[a]]), q->org[a]), q->inv[a]);
+        t_in = _mm_max_ps(near, t_in);
+        t_out = _mm_min_ps(_mm_mul_ps(far, scale), t_out);
+    }
+    *entry = t_in;
+    return _mm_movemask_ps(_mm_cmple_ps(t_in, t_out));
 }
 
-/* The slab test of two nodes at once, each box in one half of the lanes when
- * AVX allows 8 (the SSE2 build does it half by half). Per lane k the entry
- * and exit distances are (plane - o) / d on the near and far plane, the exit
- * scaled up by BVH_EXIT_SCALE (scaling commutes with the minimum); then
- *   entry = max(entry_k, tmin), exit = min(exit_k, tmax)
- * with max/minps, which return their second operand when the first is NaN:
- * a zero direction component with the origin on one of that axis' planes
- * gives 0 * inf = NaN, and the slab then leaves the interval as it was (the
- * ray runs inside the plane). The box is entered when the largest entry is
- * at most the smallest exit, over lanes x, y, z. Returns the entry distance
- * of each node, INFINITY for a node the ray misses within [tmin, tmax]. */
-#ifdef __AVX__
-static inline __m256 bvh_pair(__m128 a, __m128 b) { return _mm256_insertf128_ps(_mm256_castps128_ps256(a), b, 1); }
+/* The watertight test (arbor_triangle_intersect) of four triangles, the same
+ * operations in the same order on each lane, so the same results. Returns
+ * the mask of lanes hit in (tmin, tmax), with their distances in *t and
+ * their U, V, W and 1 / det in the rest for the barycentrics. Unused lanes
+ * hold NaN vertices, which make every comparison false: never a hit. */
+typedef struct {
+    __m128 hit, t, v, w, inv;
+} pack_hits;
 
-/* The maximum (or minimum) of lanes x, y, z of each half, in every lane. */
-static inline __m256 bvh_hmax3(__m256 v)
+static inline int pack_test(const bvh_tri_pack *p, const bvh_ray *q, __m128 tmax, pack_hits *out)
 {
-    v = _mm256_max_ps(v, _mm256_permute_ps(v, _MM_SHUFFLE(3, 0, 2, 1)));
-    return _mm256_max_ps(v, _mm256_permute_ps(v, _MM_SHUFFLE(3, 1, 0, 2)));
-}
-static inline __m256 bvh_hmin3(__m256 v)
-{
-    v = _mm256_min_ps(v, _mm256_permute_ps(v, _MM_SHUFFLE(3, 0, 2, 1)));
-    return _mm256_min_ps(v, _mm256_permute_ps(v, _MM_SHUFFLE(3, 1, 0, 2)));
+    const int kx = q->k[0], ky = q->k[1], kz = q->k[2];
+    __m128 az = _mm_sub_ps(_mm_load_ps(p->v[0][kz]), q->korg[2]);
+    __m128 bz = _mm_sub_ps(_mm_load_ps(p->v[1][kz]), q->korg[2]);
+    __m128 cz = _mm_sub_ps(_mm_load_ps(p->v[2][kz]), q->korg[2]);
+    __m128 ax = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[0][kx]), q->korg[0]), _mm_mul_ps(q->shear[0], az));
+    __m128 ay = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[0][ky]), q->korg[1]), _mm_mul_ps(q->shear[1], az));
+    __m128 bx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[1][kx]), q->korg[0]), _mm_mul_ps(q->shear[0], bz));
+    __m128 by = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[1][ky]), q->korg[1]), _mm_mul_ps(q->shear[1], bz));
+    __m128 cx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[2][kx]), q->korg[0]), _mm_mul_ps(q->shear[0], cz));
+    __m128 cy = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[2][ky]), q->korg[1]), _mm_mul_ps(q->shear[1], cz));
+    __m128 u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
+    __m128 v = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
+    __m128 w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
+    const __m128 zero = _mm_setzero_ps();
+    int on_edge = _mm_movemask_ps(
+        _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(v, zero)), _mm_cmpeq_ps(w, zero)));
+    if (__builtin_expect(on_edge != 0, 0)) {
+        /* on an edge in single precision: decide those lanes exactly in double */
+        float Ax[4], Ay[4], Bx[4], By[4], Cx[4], Cy[4], U[4], V[4], W[4];
+        _mm_storeu_ps(Ax, ax), _mm_storeu_ps(Ay, ay), _mm_storeu_ps(Bx, bx), _mm_storeu_ps(By, by);
+        _mm_storeu_ps(Cx, cx), _mm_storeu_ps(Cy, cy);
+        _mm_storeu_ps(U, u), _mm_storeu_ps(V, v), _mm_storeu_ps(W, w);
+        for (int l = 0; l < 4; l++)
+            if (on_edge & (1 << l)) {
+                U[l] = (float)((double)Cx[l] * (double)By[l] - (double)Cy[l] * (double)Bx[l]);
+                V[l] = (float)((double)Ax[l] * (double)Cy[l] - (double)Ay[l] * (double)Cx[l]);
+                W[l] = (float)((double)Bx[l] * (double)Ay[l] - (double)By[l] * (double)Ax[l]);
+            }
+        u = _mm_loadu_ps(U), v = _mm_loadu_ps(V), w = _mm_loadu_ps(W);
+    }
+    __m128 some_neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(v, zero)), _mm_cmplt_ps(w, zero));
+    __m128 some_pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(v, zero)), _mm_cmpgt_ps(w, zero));
+    __m128 det = _mm_add_ps(_mm_add_ps(u, v), w);
+    __m128 sz = q->shear[2];
+    __m128 T = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(u, sz), az), _mm_mul_ps(_mm_mul_ps(v, sz), bz)),
+                          _mm_mul_ps(_mm_mul_ps(w, sz), cz));
+    __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), det);
+    __m128 t = _mm_mul_ps(T, inv);
+    /* det == 0 needs no test of its own: then inv is infinite and t is
+     * NaN or infinite, outside (tmin, tmax) */
+    __m128 hit = _mm_andnot_ps(_mm_and_ps(some_neg, some_pos),
+                               _mm_and_ps(_mm_cmpgt_ps(t, q->tmin), _mm_cmplt_ps(t, tmax)));
+    out->hit = hit;
+    out->t = t;
+    out->v = v;
+    out->w = w;
+    out->inv = inv;
+    return _mm_movemask_ps(hit);
 }
 
-static inline void bvh_box_pair(const bvh_node *a, const bvh_node *b, const bvh_ray *q, float tmax, float *ta,
-                                float *tb)
+static inline float lane(__m128 v, int l)
 {
-    const __m256 org = bvh_pair(q->org, q->org), inv = bvh_pair(q->inv, q->inv), neg = bvh_pair(q->neg, q->neg);
-    const __m256 lo = bvh_pair(bvh_lo(a), bvh_lo(b)), hi = bvh_pair(bvh_hi(a), bvh_hi(b));
-    __m256 t_in = _mm256_mul_ps(_mm256_sub_ps(_mm256_blendv_ps(lo, hi, neg), org), inv);
-    __m256 t_out = _mm256_mul_ps(_mm256_sub_ps(_mm256_blendv_ps(hi, lo, neg), org), inv);
-    t_out = _mm256_mul_ps(t_out, _mm256_set1_ps(BVH_EXIT_SCALE));
-    t_in = bvh_hmax3(_mm256_max_ps(t_in, _mm256_set1_ps(q->tmin)));
-    t_out = bvh_hmin3(_mm256_min_ps(t_out, _mm256_set1_ps(tmax)));
-    __m256 entry = _mm256_blendv_ps(_mm256_set1_ps(INFINITY), t_in, _mm256_cmp_ps(t_in, t_out, _CMP_LE_OQ));
-    *ta = _mm256_cvtss_f32(entry);
-    *tb = _mm_cvtss_f32(_mm256_extractf128_ps(entry, 1));
-}
-#else
-static inline float bvh_box_entry(const bvh_node *n, const bvh_ray *q, float tmax)
-{
-    __m128 lo = bvh_lo(n), hi = bvh_hi(n);
-    __m128 near = _mm_or_ps(_mm_and_ps(q->neg, hi), _mm_andnot_ps(q->neg, lo));
-    __m128 far = _mm_or_ps(_mm_and_ps(q->neg, lo), _mm_andnot_ps(q->neg, hi));
-    __m128 t_in = _mm_mul_ps(_mm_sub_ps(near, q->org), q->inv);
-    __m128 t_out = _mm_mul_ps(_mm_mul_ps(_mm_sub_ps(far, q->org), q->inv), _mm_set1_ps(BVH_EXIT_SCALE));
-    t_in = _mm_max_ps(t_in, _mm_set1_ps(q->tmin));
-    t_out = _mm_min_ps(t_out, _mm_set1_ps(tmax));
-    t_in = _mm_max_ps(t_in, _mm_shuffle_ps(t_in, t_in, _MM_SHUFFLE(3, 0, 2, 1)));
-    t_in = _mm_max_ps(t_in, _mm_shuffle_ps(t_in, t_in, _MM_SHUFFLE(3, 1, 0, 2)));
-    t_out = _mm_min_ps(t_out, _mm_shuffle_ps(t_out, t_out, _MM_SHUFFLE(3, 0, 2, 1)));
-    t_out = _mm_min_ps(t_out, _mm_shuffle_ps(t_out, t_out, _MM_SHUFFLE(3, 1, 0, 2)));
-    float t0 = _mm_cvtss_f32(t_in), t1 = _mm_cvtss_f32(t_out);
-    return t0 <= t1 ? t0 : INFINITY;
+    float f[4];
+    _mm_storeu_ps(f, v);
+    return f[l];
 }
 
-static inline void bvh_box_pair(const bvh_node *a, const bvh_node *b, const bvh_ray *q, float tmax, float *ta,
-                                float *tb)
-{
-    *ta = bvh_box_entry(a, q, tmax);
-    *tb = bvh_box_entry(b, q, tmax);
-}
-#endif
-
-/* The smaller and larger of two distances as one minss / maxss: written as a
- * compare and select, the compiler may make it a branch, mispredicted when
- * the order of two children is a coin toss. */
-static inline float bvh_minf(float a, float b) { return _mm_cvtss_f32(_mm_min_ss(_mm_set_ss(a), _mm_set_ss(b))); }
-static inline float bvh_maxf(float a, float b) { return _mm_cvtss_f32(_mm_max_ss(_mm_set_ss(a), _mm_set_ss(b))); }
+typedef struct {
+    uint64_t ref;
+    float t;
+} stack_entry;
 
 /* The closest hit (any_hit false) or the first found (any_hit true) in
  * (r->tmin, r->tmax); fills *h on a hit unless h is NULL. counts, when not
- * NULL, gets the node boxes tested and the triangles tested. */
+ * NULL, gets the child boxes and the triangles tested. */
 static inline __attribute__((always_inline)) bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit,
                                                                 arbor_hit *h, arbor_trace_counts *counts)
 {
-    if (t->nnodes == 0)
+    if (t->nwide == 0)
         return false;
-    const bvh_node *nodes = t->nodes;
     bvh_ray q;
     bvh_ray_setup(&q, r);
-    arbor_ray_prep prep;
-    arbor_ray_prepare(r, &prep);
-    /* The triangle test in the ray's own axis order: the origin and each
-     * vertex are permuted to (kx, ky, kz) once, and the test then runs with
-     * the constant axes (0, 1, 2), so its per-component selects fold away.
-     * It does the same arithmetic on the same values, so the same hits. */
-    const int kx = prep.kx, ky = prep.ky, kz = prep.kz;
-    const float o[3] = {r->o.x, r->o.y, r->o.z};
-    const arbor_ray rp = {vec3(o[kx], o[ky], o[kz]), r->tmin, vec3(0.0f, 0.0f, 1.0f), r->tmax};
-    const arbor_ray_prep pp = {0, 1, 2, prep.sx, prep.sy, prep.sz};
     float tmax = r->tmax;
-    if (counts)
-        counts->nodes++;
-    float t_root, t_unused;
-    bvh_box_pair(&nodes[0], &nodes[0], &q, tmax, &t_root, &t_unused);
-    if (t_root == INFINITY)
-        return false;
-
-    struct {
-        uint32_t node;
-        float t;
-    } stack[BVH_MAX_DEPTH];
+    stack_entry stack[BVH_MAX_DEPTH * (BVH_WIDTH - 1)];
     uint32_t sp = 0;
-    uint32_t ni = 0;
+    uint64_t ref = 0; /* the root */
     bool found = false;
     float hit_u = 0.0f, hit_v = 0.0f;
     uint32_t hit_slot = 0;
     for (;;) {
-        const bvh_node *n = &nodes[ni];
-        if (n->count == 0) {
-            uint32_t left = ni + 1, right = n->index;
-            float t_left, t_right;
-            bvh_box_pair(&nodes[left], &nodes[right], &q, tmax, &t_left, &t_right);
+        if (!bvh_ref_is_leaf(ref)) {
+            const bvh_wide_node *n = &t->wide[bvh_ref_index(ref)];
+            __m128 entry;
+            int mask = wide_boxes(n, &q, _mm_set1_ps(tmax), &entry);
             if (counts)
-                counts->nodes += 2;
-            /* Nearer child first. Any hit will do for an any-hit query, so
-             * it takes the left child first whenever entered: measured, that
-             * is faster than ordering (no dependent compare before descending). */
-            bool swap = any_hit ? t_left == INFINITY : t_right < t_left;
-            uint32_t near = swap ? right : left, far = swap ? left : right;
-            float t_near = swap ? t_right : t_left, t_far = swap ? t_left : t_right;
-            if (t_near != INFINITY) {
-                if (t_far != INFINITY) {
-                    stack[sp].node = far;
-                    stack[sp].t = t_far;
-                    sp++;
+                for (int c = 0; c < BVH_WIDTH; c++)
+                    counts->nodes += n->child[c] != 0;
+            if (mask != 0) {
+                float te[4];
+                _mm_storeu_ps(te, entry);
+                int c = __builtin_ctz(mask);
+                mask &= mask - 1;
+                uint64_t near = n->child[c];
+                float t_near = te[c];
+                const uint32_t base = sp;
+                /* push the rest; for a closest hit keep the nearest to go
+                 * into and push in order, farthest deepest */
+                while (mask != 0) {
+                    c = __builtin_ctz(mask);
+                    mask &= mask - 1;
+                    uint64_t other = n->child[c];
+                    float t_other = te[c];
+                    if (!any_hit && t_other < t_near) {
+                        uint64_t r0 = near;
+                        float t0 = t_near;
+                        near = other, t_near = t_other;
+                        other = r0, t_other = t0;
+                    }
+                    uint32_t i = sp++;
+                    if (!any_hit)
+                        for (; i > base && stack[i - 1].t < t_other; i--)
+                            stack[i] = stack[i - 1];
+                    stack[i].ref = other;
+                    stack[i].t = t_other;
                 }
-                ni = near;
+                ref = near;
                 continue;
             }
         } else {
-            const float *v = (const float *)(t->tri_verts + 3 * (size_t)n->index);
-            for (uint32_t i = 0; i < n->count; i++, v += 9) {
-                float tt, u, w;
-                if (counts)
-                    counts->tris++;
-                arbor_vec3 a = vec3(v[kx], v[ky], v[kz]), b = vec3(v[3 + kx], v[3 + ky], v[3 + kz]),
-                           c = vec3(v[6 + kx], v[6 + ky], v[6 + kz]);
-                if (arbor_triangle_intersect(&rp, &pp, a, b, c, tmax, &tt, &u, &w)) {
-                    if (any_hit)
-                        return true;
-                    found = true;
-                    tmax = tt;
-                    hit_u = u;
-                    hit_v = w;
-                    hit_slot = n->index + i;
-                }
+            uint32_t tris = bvh_ref_tris(ref), p0 = bvh_ref_index(ref);
+            if (counts)
+                counts->tris += tris;
+            for (uint32_t p = p0; p < p0 + (tris + BVH_WIDTH - 1) / BVH_WIDTH; p++) {
+                pack_hits ph;
+                int hits = pack_test(&t->packs[p], &q, _mm_set1_ps(tmax), &ph);
+                if (hits == 0)
+                    continue;
+                if (any_hit)
+                    return true;
+                /* the nearest lane hit; on a tie the first, as a triangle
+                 * by triangle loop taking only t < tmax would */
+                __m128 th = _mm_or_ps(_mm_and_ps(ph.hit, ph.t), _mm_andnot_ps(ph.hit, _mm_set1_ps(INFINITY)));
+                __m128 m = _mm_min_ps(th, _mm_shuffle_ps(th, th, _MM_SHUFFLE(2, 3, 0, 1)));
+                m = _mm_min_ps(m, _mm_shuffle_ps(m, m, _MM_SHUFFLE(1, 0, 3, 2)));
+                int l = __builtin_ctz(_mm_movemask_ps(_mm_cmpeq_ps(th, m)) & hits);
+                found = true;
+                tmax = lane(ph.t, l);
+                hit_u = lane(ph.v, l) * lane(ph.inv, l);
+                hit_v = lane(ph.w, l) * lane(ph.inv, l);
+                hit_slot = BVH_WIDTH * p + (uint32_t)l;
             }
         }
-        /* next: the most recently pushed node that may still hold a closer hit */
+        /* next: the most recently pushed entry that may still hold a closer hit */
         for (;;) {
             if (sp == 0)
                 goto done;
             sp--;
             if (any_hit || stack[sp].t <= tmax) { /* an any-hit query never lowers tmax */
-                ni = stack[sp].node;
+                ref = stack[sp].ref;
                 break;
             }
         }
@@ -220,7 +254,7 @@ done:
         h->t = tmax;
         h->u = hit_u;
         h->v = hit_v;
-        h->tri = t->tri_index[hit_slot];
+        h->tri = t->pack_tri[hit_slot];
     }
     return found;
 }

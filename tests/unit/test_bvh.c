@@ -270,7 +270,9 @@ static void test_stats_by_hand(void)
         TEST_ASSERT_EQUAL_DOUBLE(1.0, s.mean_leaf_depth);
         TEST_ASSERT_EQUAL_DOUBLE(1.0, s.mean_tris_per_leaf);
         TEST_ASSERT_EQUAL_UINT64(2, s.refs);
-        TEST_ASSERT_EQUAL_UINT64(3 * 32 + 2 * 40, s.bytes);
+        /* binary: 3 nodes and 2 indices; wide: the two triangles make one
+         * leaf, a root with one pack (144 bytes of vertices, 4 indices) */
+        TEST_ASSERT_EQUAL_UINT64(3 * 32 + 2 * 4 + 128 + 144 + 4 * 4, s.bytes);
         TEST_ASSERT_DOUBLE_WITHIN(1e-9, expect, s.sah_cost);
         arbor_accel_free(a);
     }
@@ -550,7 +552,32 @@ static void duplicate_triangle(bvh_tree *t, arbor_tree_stats *s)
 static void move_vertex_copy(bvh_tree *t, arbor_tree_stats *s)
 {
     (void)s;
-    t->tri_verts[5].y += 1e-3f;
+    t->packs[0].v[1][1][0] += 1e-3f;
+}
+/* The first leaf child of a wide node: its node and slot. */
+static uint32_t first_wide_leaf(const bvh_tree *t, int *slot)
+{
+    for (uint32_t w = 0;; w++)
+        for (*slot = 0; *slot < BVH_WIDTH; ++*slot)
+            if (bvh_ref_is_leaf(t->wide[w].child[*slot]))
+                return w;
+}
+static void shrink_wide_leaf_box(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    int c;
+    uint32_t w = first_wide_leaf(t, &c);
+    t->wide[w].box[3][c] = t->wide[w].box[0][c];
+}
+static void drop_wide_child(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    t->wide[0].child[1] = 0;
+}
+static void swap_pack_triangle(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    t->pack_tri[BVH_WIDTH] = t->pack_tri[0];
 }
 static void misplace_right_child(bvh_tree *t, arbor_tree_stats *s)
 {
@@ -591,6 +618,7 @@ static void test_validator_catches_corruption(void)
     static const corruption corruptions[] = {
         shrink_leaf_box,   grow_child_box,  duplicate_triangle, move_vertex_copy,         misplace_right_child,
         shift_leaf_range,  miscount_nodes,  miscount_depth,     misstate_mean_leaf_depth, misstate_sah_cost,
+        shrink_wide_leaf_box, drop_wide_child, swap_pack_triangle,
     };
     arbor_mesh m;
     test_random_soup(&m, 500, 17);
