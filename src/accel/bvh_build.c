@@ -558,19 +558,22 @@ static void builder_init(bvh_builder *B, const arbor_build_opts *o)
     B->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : BVH_COST_INTERSECT;
 }
 
-/* Shrinks the worst-case node array (taking it over) to the nodes used,
- * keeping it 64-byte aligned so that no 32-byte node straddles two cache
- * lines: in place when realloc allows (it usually does when shrinking),
- * through an aligned copy when it moved the nodes to a less aligned place. */
-static bvh_node *nodes_shrink(bvh_node *nodes, uint32_t used)
+void *bvh_alloc_aligned(size_t bytes)
 {
-    size_t bytes = ((size_t)used * sizeof(bvh_node) + 63) & ~(size_t)63;
-    bvh_node *shrunk = realloc(nodes, bytes);
+    return aligned_alloc(64, bytes > 0 ? (bytes + 63) & ~(size_t)63 : 64);
+}
+
+/* In place when realloc allows (it usually does when shrinking), through an
+ * aligned copy when it moved the array to a less aligned place. */
+void *bvh_shrink_aligned(void *p, size_t used)
+{
+    size_t bytes = used > 0 ? (used + 63) & ~(size_t)63 : 64;
+    void *shrunk = realloc(p, bytes);
     if (shrunk == NULL || ((uintptr_t)shrunk & 63) == 0)
-        return shrunk != NULL ? shrunk : nodes;
-    bvh_node *out = aligned_alloc(64, bytes);
+        return shrunk != NULL ? shrunk : p;
+    void *out = aligned_alloc(64, bytes);
     if (out != NULL)
-        memcpy(out, shrunk, (size_t)used * sizeof(bvh_node));
+        memcpy(out, shrunk, used);
     free(shrunk);
     return out;
 }
@@ -597,7 +600,7 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
     builder_init(&B, o);
     build_box *tri_box = malloc(n * sizeof *tri_box);
     float *centroid = malloc(4 * (size_t)n * sizeof *centroid);
-    bvh_node *scratch = aligned_alloc(64, ((2 * (size_t)n - 1) * sizeof(bvh_node) + 63) & ~(size_t)63);
+    bvh_node *scratch = bvh_alloc_aligned((2 * (size_t)n - 1) * sizeof(bvh_node));
     tree->tri_index = malloc(n * sizeof *tree->tri_index);
     if (tri_box == NULL || centroid == NULL || scratch == NULL || tree->tri_index == NULL)
         goto nomem;
@@ -610,13 +613,13 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
     B.nodes = scratch;
     bvh_tally tally = {0};
     tree->nnodes = build_subtree(&B, 0, 0, n, 0, &tally);
-    tree->nodes = nodes_shrink(scratch, tree->nnodes);
+    tree->nodes = bvh_shrink_aligned(scratch, tree->nnodes * sizeof(bvh_node));
     scratch = NULL;
     if (tree->nodes == NULL)
         goto nomem;
     free(tri_box);
     free(centroid);
-    if (!bvh_wide_build(tree, m, e)) {
+    if (!bvh_wide_build(tree, m, parallel, e)) {
         bvh_tree_free(tree);
         return NULL;
     }

@@ -97,9 +97,17 @@ bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h);
 bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
 bool bvh_occluded(const void *impl, const arbor_ray *r);
 
-/* bvh_wide.c: builds t's wide tree from its binary tree (false, e filled,
- * when memory runs out), and checks it against the mesh. */
-bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, arbor_err *e);
+/* Arrays of nodes and packs are 64-byte aligned, so that no node straddles
+ * more cache lines than it must. Both builds allocate them for the worst
+ * case, write them once, then shrink them to the part used (keeping the
+ * alignment; NULL, with p freed, when memory runs out). bvh_build.c. */
+void *bvh_alloc_aligned(size_t bytes);
+void *bvh_shrink_aligned(void *p, size_t used);
+
+/* bvh_wide.c: builds t's wide tree from its binary tree, on two threads when
+ * parallel (false, e filled, when memory runs out), and checks it against
+ * the mesh. */
+bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, bool parallel, arbor_err *e);
 bool bvh_wide_validate(const bvh_tree *t, const arbor_mesh *m, arbor_err *e);
 /* The bytes both layouts hold, for arbor_tree_stats.bytes. */
 uint64_t bvh_tree_bytes(const bvh_tree *t);

@@ -20,58 +20,93 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "arbor/sys.h"
 #include "bvh_internal.h"
 
 #define BVH_WIDE_LEAF_TRIS BVH_WIDTH
 
-/* The range [*first, *first + count) of leaf order that binary node i covers:
- * from its leftmost leaf to its rightmost. */
-static uint32_t subtree_tris(const bvh_tree *t, uint32_t i, uint32_t *first)
+typedef struct {
+    uint32_t first, count;  /* a range of leaf order */
+} tri_range;
+
+/* Whether binary node i becomes a wide leaf: it is a binary leaf, or its
+ * subtree holds at most BVH_WIDE_LEAF_TRIS triangles; if so, *r is the range
+ * of leaf order it covers. A subtree is the run of nodes from i in
+ * depth-first order, and a small one has at most 2 BVH_WIDE_LEAF_TRIS - 1
+ * nodes, so this reads a few neighbours of i and stops early for a big one. */
+static bool becomes_leaf(const bvh_tree *t, uint32_t i, tri_range *r)
 {
-    uint32_t lo = i, hi = i;
-    while (t->nodes[lo].count == 0)
-        lo++;
-    while (t->nodes[hi].count == 0)
-        hi = t->nodes[hi].index;
-    *first = t->nodes[lo].index;
-    return t->nodes[hi].index + t->nodes[hi].count - *first;
+    const bvh_node *n = t->nodes;
+    uint32_t pending = 1; /* nodes of the subtree not yet reached */
+    r->count = 0;
+    for (uint32_t j = i; pending > 0; j++) {
+        if (n[j].count == 0) {
+            pending++; /* this node done, its two children to come */
+            continue;
+        }
+        if (r->count == 0)
+            r->first = n[j].index;
+        r->count += n[j].count;
+        pending--;
+        if (j != i && r->count > BVH_WIDE_LEAF_TRIS)
+            return false;
+    }
+    return true;
 }
 
-static bool becomes_leaf(const bvh_tree *t, uint32_t i)
-{
-    uint32_t first;
-    return t->nodes[i].count > 0 || subtree_tris(t, i, &first) <= BVH_WIDE_LEAF_TRIS;
-}
+/* What filling shares: the tree, the mesh, the next wide node and pack. */
+typedef struct {
+    bvh_tree *t;
+    const arbor_mesh *m;
+    uint32_t next_wide, next_pack;
+} wide_ctx;
 
-static float node_area(const bvh_node *n)
+/* How much opening binary node i is worth: its area, or -1 for a node that
+ * becomes a leaf and cannot be opened. */
+static float open_priority(const wide_ctx *x, uint32_t i)
 {
-    return aabb_area(bvh_node_box(n));
+    tri_range r;
+    return becomes_leaf(x->t, i, &r) ? -1.0f : aabb_area(bvh_node_box(&x->t->nodes[i]));
 }
 
 /* The binary nodes that become the children of the wide node made from
  * binary inner node i (which does not become a leaf); returns how many. */
-static int wide_children(const bvh_tree *t, uint32_t i, uint32_t out[BVH_WIDTH])
+static int wide_children(const wide_ctx *x, uint32_t i, uint32_t out[BVH_WIDTH])
 {
+    const bvh_node *nodes = x->t->nodes;
+    float priority[BVH_WIDTH];
     int n = 2;
     out[0] = i + 1;
-    out[1] = t->nodes[i].index;
+    out[1] = nodes[i].index;
+    priority[0] = open_priority(x, out[0]);
+    priority[1] = open_priority(x, out[1]);
     while (n < BVH_WIDTH) {
-        int open = -1;
-        float best = -1.0f;
-        for (int c = 0; c < n; c++) {
-            float area = node_area(&t->nodes[out[c]]);
-            if (!becomes_leaf(t, out[c]) && area > best) {
-                best = area;
+        int open = 0;
+        for (int c = 1; c < n; c++)
+            if (priority[c] > priority[open])
                 open = c;
-            }
-        }
-        if (open < 0)
+        if (priority[open] < 0.0f)
             break;
         uint32_t inner = out[open];
         out[open] = inner + 1;
-        out[n++] = t->nodes[inner].index;
+        out[n] = nodes[inner].index;
+        priority[open] = open_priority(x, out[open]);
+        priority[n] = open_priority(x, out[n]);
+        n++;
     }
     return n;
+}
+
+/* The children of the root wide node. The root is always a wide node, so
+ * traversal always starts at one: a binary tree small enough to be one leaf
+ * gets a root with that leaf as its only child. */
+static int root_children(const wide_ctx *x, uint32_t out[BVH_WIDTH])
+{
+    tri_range r;
+    if (!becomes_leaf(x->t, 0, &r))
+        return wide_children(x, 0, out);
+    out[0] = 0;
+    return 1;
 }
 
 static uint32_t packs_for(uint32_t tris)
@@ -79,118 +114,104 @@ static uint32_t packs_for(uint32_t tris)
     return (tris + BVH_WIDTH - 1) / BVH_WIDTH;
 }
 
-/* Counts the wide nodes and packs the subtree of binary node i becomes. */
-static void count_subtree(const bvh_tree *t, uint32_t i, uint32_t *nwide, uint32_t *npacks)
+/* Assigns a leaf its packs and their lanes' triangles (UINT32_MAX for the
+ * unused lanes); fill_vertices copies the vertices afterwards. */
+static uint64_t fill_leaf(wide_ctx *x, tri_range r)
 {
-    uint32_t first;
-    if (becomes_leaf(t, i)) {
-        *npacks += packs_for(subtree_tris(t, i, &first));
-        return;
-    }
-    uint32_t kids[BVH_WIDTH];
-    int n = wide_children(t, i, kids);
-    ++*nwide;
-    for (int c = 0; c < n; c++)
-        count_subtree(t, kids[c], nwide, npacks);
+    uint32_t pack0 = x->next_pack;
+    x->next_pack += packs_for(r.count);
+    uint32_t *lanes = x->t->pack_tri + BVH_WIDTH * (size_t)pack0;
+    for (uint32_t slot = 0; slot < BVH_WIDTH * packs_for(r.count); slot++)
+        lanes[slot] = slot < r.count ? x->t->tri_index[r.first + slot] : UINT32_MAX;
+    return BVH_REF_LEAF | (uint64_t)r.count << 32 | pack0;
 }
 
+/* The vertices of packs [b, e), from the mesh, NaN in unused lanes: a
+ * linear pass, split between two threads for large meshes. */
 typedef struct {
     bvh_tree *t;
     const arbor_mesh *m;
-    uint32_t next_wide, next_pack;
-} wide_fill;
+    uint32_t b, e;
+} vertex_pass;
 
-static uint64_t fill_leaf(wide_fill *f, uint32_t i)
+static void fill_vertices(void *arg)
 {
-    bvh_tree *t = f->t;
-    uint32_t first;
-    uint32_t count = subtree_tris(t, i, &first);
-    uint32_t pack0 = f->next_pack;
-    f->next_pack += packs_for(count);
-    for (uint32_t p = pack0; p < f->next_pack; p++) {
-        bvh_tri_pack *pack = &t->packs[p];
+    const vertex_pass *vp = arg;
+    for (uint32_t p = vp->b; p < vp->e; p++) {
+        bvh_tri_pack *pack = &vp->t->packs[p];
         for (int lane = 0; lane < BVH_WIDTH; lane++) {
-            uint32_t slot = first + (p - pack0) * BVH_WIDTH + (uint32_t)lane;
+            uint32_t tri = vp->t->pack_tri[BVH_WIDTH * (size_t)p + (size_t)lane];
             arbor_vec3 v[3] = {{NAN, NAN, NAN}, {NAN, NAN, NAN}, {NAN, NAN, NAN}};
-            uint32_t tri = UINT32_MAX;
-            if (slot < first + count) {
-                tri = t->tri_index[slot];
-                arbor_mesh_tri(f->m, tri, &v[0], &v[1], &v[2]);
-            }
+            if (tri != UINT32_MAX)
+                arbor_mesh_tri(vp->m, tri, &v[0], &v[1], &v[2]);
             for (int k = 0; k < 3; k++) {
                 pack->v[k][0][lane] = v[k].x;
                 pack->v[k][1][lane] = v[k].y;
                 pack->v[k][2][lane] = v[k].z;
             }
-            t->pack_tri[BVH_WIDTH * (size_t)p + (size_t)lane] = tri;
         }
     }
-    return BVH_REF_LEAF | (uint64_t)count << 32 | pack0;
 }
 
-/* Writes the subtree of binary node i; returns the reference to it. */
-static uint64_t fill_subtree(wide_fill *f, uint32_t i)
+static uint64_t fill_subtree(wide_ctx *x, uint32_t i);
+
+/* Writes a wide node whose children are binary nodes kids[0, n), then their
+ * subtrees; returns its reference. */
+static uint64_t fill_node(wide_ctx *x, const uint32_t *kids, int n)
 {
-    const bvh_tree *t = f->t;
-    if (becomes_leaf(t, i))
-        return fill_leaf(f, i);
-    uint32_t kids[BVH_WIDTH];
-    int n = wide_children(t, i, kids);
-    uint32_t w = f->next_wide++;
+    uint32_t w = x->next_wide++;
+    bvh_wide_node *node = &x->t->wide[w];
     for (int c = 0; c < BVH_WIDTH; c++) {
-        const bvh_node *k = c < n ? &t->nodes[kids[c]] : NULL;
+        const bvh_node *k = c < n ? &x->t->nodes[kids[c]] : NULL;
         for (int row = 0; row < 3; row++) {
-            f->t->wide[w].box[row][c] = k ? k->bounds[row] : INFINITY;
-            f->t->wide[w].box[row + 3][c] = k ? k->bounds[row + 3] : -INFINITY;
+            node->box[row][c] = k ? k->bounds[row] : INFINITY;
+            node->box[row + 3][c] = k ? k->bounds[row + 3] : -INFINITY;
         }
-        f->t->wide[w].child[c] = 0;
+        node->child[c] = 0;
     }
     for (int c = 0; c < n; c++)
-        f->t->wide[w].child[c] = fill_subtree(f, kids[c]);
+        node->child[c] = fill_subtree(x, kids[c]);
     return w;
 }
 
-static void *alloc_aligned(size_t count, size_t size)
+/* Writes the subtree of binary node i; returns the reference to it. */
+static uint64_t fill_subtree(wide_ctx *x, uint32_t i)
 {
-    size_t bytes = (count * size + 63) & ~(size_t)63;
-    return aligned_alloc(64, bytes > 0 ? bytes : 64);
+    tri_range r;
+    if (becomes_leaf(x->t, i, &r))
+        return fill_leaf(x, r);
+    uint32_t kids[BVH_WIDTH];
+    int n = wide_children(x, i, kids);
+    return fill_node(x, kids, n);
 }
 
-bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, arbor_err *e)
+bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, bool parallel, arbor_err *e)
 {
     if (t->nnodes == 0)
         return true;
-    /* The root is always a wide node, so traversal always starts at one: a
-     * binary tree small enough to be one leaf gets a root with that leaf. */
-    bool root_leaf = becomes_leaf(t, 0);
-    uint32_t nwide = 1, npacks = 0, first;
-    if (root_leaf) {
-        npacks = packs_for(subtree_tris(t, 0, &first));
-    } else {
-        nwide = 0;
-        count_subtree(t, 0, &nwide, &npacks);
+    /* Worst cases: a wide node per binary inner node (at least the root),
+     * and per wide leaf one pack more than its triangles fill, where wide
+     * leaves are at most the binary leaves. */
+    uint32_t leaves = (t->nnodes + 1) / 2;
+    size_t max_wide = leaves > 1 ? leaves - 1 : 1, max_packs = leaves + t->ntris / BVH_WIDTH;
+    wide_ctx x = {t, m, 0, 0};
+    t->wide = bvh_alloc_aligned(max_wide * sizeof *t->wide);
+    t->packs = bvh_alloc_aligned(max_packs * sizeof *t->packs);
+    t->pack_tri = malloc(BVH_WIDTH * max_packs * sizeof *t->pack_tri);
+    if (t->wide != NULL && t->packs != NULL && t->pack_tri != NULL) {
+        uint32_t kids[BVH_WIDTH];
+        fill_node(&x, kids, root_children(&x, kids));
+        t->nwide = x.next_wide;
+        t->npacks = x.next_pack;
+        t->wide = bvh_shrink_aligned(t->wide, t->nwide * sizeof *t->wide);
+        t->packs = bvh_shrink_aligned(t->packs, t->npacks * sizeof *t->packs);
+        uint32_t *lanes = realloc(t->pack_tri, BVH_WIDTH * (size_t)t->npacks * sizeof *t->pack_tri);
+        t->pack_tri = lanes != NULL ? lanes : t->pack_tri;
     }
-    t->wide = alloc_aligned(nwide, sizeof *t->wide);
-    t->packs = alloc_aligned(npacks, sizeof *t->packs);
-    t->pack_tri = malloc(BVH_WIDTH * (size_t)npacks * sizeof *t->pack_tri);
     if (t->wide == NULL || t->packs == NULL || t->pack_tri == NULL)
-        return arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory for the wide tree (%u nodes, %u packs)", nwide,
-                          npacks);
-    t->nwide = nwide;
-    t->npacks = npacks;
-    wide_fill f = {t, m, 0, 0};
-    if (root_leaf) {
-        f.next_wide = 1;
-        for (int c = 0; c < BVH_WIDTH; c++)
-            for (int row = 0; row < 3; row++) {
-                t->wide[0].box[row][c] = c == 0 ? t->nodes[0].bounds[row] : INFINITY;
-                t->wide[0].box[row + 3][c] = c == 0 ? t->nodes[0].bounds[row + 3] : -INFINITY;
-            }
-        memset(t->wide[0].child, 0, sizeof t->wide[0].child);
-        t->wide[0].child[0] = fill_leaf(&f, 0);
-    } else {
-        fill_subtree(&f, 0);
-    }
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory for the wide tree of %u triangles", t->ntris);
+    vertex_pass low = {t, m, 0, t->npacks / 2}, high = {t, m, t->npacks / 2, t->npacks};
+    arbor_fork_join(fill_vertices, &low, fill_vertices, &high, parallel);
     return true;
 }
 
