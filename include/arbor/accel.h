@@ -57,7 +57,7 @@ typedef struct {
 
 /* Work done by one traced ray, for the heat mode and per-ray statistics. */
 typedef struct {
-    uint64_t nodes;  /* nodes visited */
+    uint64_t nodes;  /* node steps: kd nodes visited, bvh child boxes tested */
     uint64_t tris;   /* triangle tests */
 } arbor_trace_counts;
 

@@ -25,41 +25,64 @@
  * "Robust BVH Ray Traversal", JCGT 2013), so no box a ray touches is culled. */
 #define BVH_EXIT_SCALE 1.0000003576278687f
 
-/* Per-ray constants, each broadcast to all lanes. Box test: the origin, the
- * inverse direction (+-inf for a zero component) and, per axis, the row of
- * a node's boxes the ray enters through (lo, or hi when the direction is
- * negative) and the row it leaves through. Triangle test (the watertight
- * test's, see ray.h): the axis permutation k, the origin in that order and
- * the shear constants. */
+/* The helpers below must be inlined into the traversal: a call per node or
+ * per ray costs as much as the work (measured on sponza, whose rays mostly
+ * leave the model after a few nodes). */
+#define BVH_INLINE static inline __attribute__((always_inline))
+
+/* Per-ray constants of the box test, each broadcast to all lanes: the
+ * origin, the inverse direction (+-inf for a zero component), and per axis
+ * the row of a node's boxes the ray enters through (lo, or hi when the
+ * direction is negative) and the row it leaves through. */
 typedef struct {
     __m128 org[3], inv[3];
     int near[3], far[3];
     __m128 tmin;
-    int k[3];
-    __m128 korg[3], shear[3];
-} bvh_ray;
+} box_ray;
 
-static inline void bvh_ray_setup(bvh_ray *q, const arbor_ray *r)
+BVH_INLINE void box_ray_setup(box_ray *q, const arbor_ray *r)
 {
-    const float o[3] = {r->o.x, r->o.y, r->o.z}, d[3] = {r->d.x, r->d.y, r->d.z};
+    /* one divps for the three axes: the divisions would otherwise queue
+     * one behind another at the start of every ray */
+    const __m128 o = _mm_setr_ps(r->o.x, r->o.y, r->o.z, 0.0f);
+    const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), _mm_setr_ps(r->d.x, r->d.y, r->d.z, 1.0f));
+    const int neg = _mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps()));
+    q->org[0] = _mm_shuffle_ps(o, o, _MM_SHUFFLE(0, 0, 0, 0));
+    q->org[1] = _mm_shuffle_ps(o, o, _MM_SHUFFLE(1, 1, 1, 1));
+    q->org[2] = _mm_shuffle_ps(o, o, _MM_SHUFFLE(2, 2, 2, 2));
+    q->inv[0] = _mm_shuffle_ps(inv, inv, _MM_SHUFFLE(0, 0, 0, 0));
+    q->inv[1] = _mm_shuffle_ps(inv, inv, _MM_SHUFFLE(1, 1, 1, 1));
+    q->inv[2] = _mm_shuffle_ps(inv, inv, _MM_SHUFFLE(2, 2, 2, 2));
     for (int a = 0; a < 3; a++) {
-        float inv = 1.0f / d[a];
-        q->org[a] = _mm_set1_ps(o[a]);
-        q->inv[a] = _mm_set1_ps(inv);
-        q->near[a] = inv < 0.0f ? a + 3 : a;
-        q->far[a] = inv < 0.0f ? a : a + 3;
+        int is_neg = (neg >> a) & 1;
+        q->near[a] = a + 3 * is_neg;
+        q->far[a] = a + 3 - 3 * is_neg;
     }
     q->tmin = _mm_set1_ps(r->tmin);
+}
+
+/* Per-ray constants of the triangle test (the watertight test's, ray.h):
+ * the axis permutation k, the origin in that order, the shear constants.
+ * Set up at the first leaf a ray reaches: many rays never reach one. */
+typedef struct {
+    int k[3];
+    __m128 org[3], shear[3], tmin;
+} tri_ray;
+
+BVH_INLINE void tri_ray_setup(tri_ray *q, const arbor_ray *r)
+{
+    const float o[3] = {r->o.x, r->o.y, r->o.z};
     arbor_ray_prep p;
     arbor_ray_prepare(r, &p);
     q->k[0] = p.kx;
     q->k[1] = p.ky;
     q->k[2] = p.kz;
     for (int a = 0; a < 3; a++)
-        q->korg[a] = _mm_set1_ps(o[q->k[a]]);
+        q->org[a] = _mm_set1_ps(o[q->k[a]]);
     q->shear[0] = _mm_set1_ps(p.sx);
     q->shear[1] = _mm_set1_ps(p.sy);
     q->shear[2] = _mm_set1_ps(p.sz);
+    q->tmin = _mm_set1_ps(r->tmin);
 }
 
 /* The slab test of a node's children. Per axis the entry and exit distances
@@ -71,7 +94,7 @@ static inline void bvh_ray_setup(bvh_ray *q, const arbor_ray *r)
  * was (the ray runs inside the plane). Returns the mask of children entered,
  * entry <= exit, and each one's entry distance in *entry. Empty slots
  * (lo +inf, hi -inf) give entry +inf and exit -inf on every axis. */
-static inline int wide_boxes(const bvh_wide_node *n, const bvh_ray *q, __m128 tmax, __m128 *entry)
+BVH_INLINE int wide_boxes(const bvh_wide_node *n, const box_ray *q, __m128 tmax, __m128 *entry)
 {
     const __m128 scale = _mm_set1_ps(BVH_EXIT_SCALE);
     __m128 t_in = q->tmin, t_out = tmax;
@@ -94,18 +117,18 @@ typedef struct {
     __m128 hit, t, v, w, inv;
 } pack_hits;
 
-static inline int pack_test(const bvh_tri_pack *p, const bvh_ray *q, __m128 tmax, pack_hits *out)
+BVH_INLINE int pack_test(const bvh_tri_pack *p, const tri_ray *q, __m128 tmax, pack_hits *out)
 {
     const int kx = q->k[0], ky = q->k[1], kz = q->k[2];
-    __m128 az = _mm_sub_ps(_mm_load_ps(p->v[0][kz]), q->korg[2]);
-    __m128 bz = _mm_sub_ps(_mm_load_ps(p->v[1][kz]), q->korg[2]);
-    __m128 cz = _mm_sub_ps(_mm_load_ps(p->v[2][kz]), q->korg[2]);
-    __m128 ax = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[0][kx]), q->korg[0]), _mm_mul_ps(q->shear[0], az));
-    __m128 ay = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[0][ky]), q->korg[1]), _mm_mul_ps(q->shear[1], az));
-    __m128 bx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[1][kx]), q->korg[0]), _mm_mul_ps(q->shear[0], bz));
-    __m128 by = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[1][ky]), q->korg[1]), _mm_mul_ps(q->shear[1], bz));
-    __m128 cx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[2][kx]), q->korg[0]), _mm_mul_ps(q->shear[0], cz));
-    __m128 cy = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[2][ky]), q->korg[1]), _mm_mul_ps(q->shear[1], cz));
+    __m128 az = _mm_sub_ps(_mm_load_ps(p->v[0][kz]), q->org[2]);
+    __m128 bz = _mm_sub_ps(_mm_load_ps(p->v[1][kz]), q->org[2]);
+    __m128 cz = _mm_sub_ps(_mm_load_ps(p->v[2][kz]), q->org[2]);
+    __m128 ax = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[0][kx]), q->org[0]), _mm_mul_ps(q->shear[0], az));
+    __m128 ay = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[0][ky]), q->org[1]), _mm_mul_ps(q->shear[1], az));
+    __m128 bx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[1][kx]), q->org[0]), _mm_mul_ps(q->shear[0], bz));
+    __m128 by = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[1][ky]), q->org[1]), _mm_mul_ps(q->shear[1], bz));
+    __m128 cx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[2][kx]), q->org[0]), _mm_mul_ps(q->shear[0], cz));
+    __m128 cy = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[2][ky]), q->org[1]), _mm_mul_ps(q->shear[1], cz));
     __m128 u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
     __m128 v = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
     __m128 w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
@@ -146,7 +169,7 @@ static inline int pack_test(const bvh_tri_pack *p, const bvh_ray *q, __m128 tmax
     return _mm_movemask_ps(hit);
 }
 
-static inline float lane(__m128 v, int l)
+BVH_INLINE float lane(__m128 v, int l)
 {
     float f[4];
     _mm_storeu_ps(f, v);
@@ -161,13 +184,15 @@ typedef struct {
 /* The closest hit (any_hit false) or the first found (any_hit true) in
  * (r->tmin, r->tmax); fills *h on a hit unless h is NULL. counts, when not
  * NULL, gets the child boxes and the triangles tested. */
-static inline __attribute__((always_inline)) bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit,
-                                                                arbor_hit *h, arbor_trace_counts *counts)
+BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit, arbor_hit *h,
+                             arbor_trace_counts *counts)
 {
     if (t->nwide == 0)
         return false;
-    bvh_ray q;
-    bvh_ray_setup(&q, r);
+    box_ray q;
+    box_ray_setup(&q, r);
+    tri_ray tq;
+    bool tq_ready = false;
     float tmax = r->tmax;
     stack_entry stack[BVH_MAX_DEPTH * (BVH_WIDTH - 1)];
     uint32_t sp = 0;
@@ -218,9 +243,13 @@ static inline __attribute__((always_inline)) bool bvh_traverse(const bvh_tree *t
             uint32_t tris = bvh_ref_tris(ref), p0 = bvh_ref_index(ref);
             if (counts)
                 counts->tris += tris;
+            if (!tq_ready) {
+                tri_ray_setup(&tq, r);
+                tq_ready = true;
+            }
             for (uint32_t p = p0; p < p0 + (tris + BVH_WIDTH - 1) / BVH_WIDTH; p++) {
                 pack_hits ph;
-                int hits = pack_test(&t->packs[p], &q, _mm_set1_ps(tmax), &ph);
+                int hits = pack_test(&t->packs[p], &tq, _mm_set1_ps(tmax), &ph);
                 if (hits == 0)
                     continue;
                 if (any_hit)
