@@ -22,6 +22,12 @@
  * triangle. They are skipped one by one, not all at once, because a ray
  * lying in a plane pushes a child with the whole interval, so the stack is
  * not always ordered by tnear.
+ * A ray through a point where split planes meet (perfect splits put planes
+ * through vertices) touches some cells around it over an interval of zero
+ * length, which the rounding of tsplit can put just outside [tnear, tfar];
+ * a triangle listed only in such a cell would be lost (rays aimed through a
+ * sphere's vertices were). So a node sends the ray to both children unless
+ * tsplit lies outside the interval by more than KD_SPLIT_MARGIN.
  * Among hits at exactly the same t the lowest triangle index wins, as in
  * brute force, whatever order the leaves list them in.
  *
@@ -33,6 +39,9 @@
  * moves into (and the other with an empty interval when tnear is 0).
  */
 #include "kd_internal.h"
+
+/* Relative margin for the rounding of cell intervals and hit distances. */
+#define KD_SPLIT_MARGIN 0x1p-20f
 
 typedef struct {
     uint32_t node;
@@ -103,9 +112,9 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
             float tsplit = (n->split - o[axis]) * inv[axis];
             uint32_t below = at + 1, above = kd_node_high(*n);
             uint32_t near = below_first[axis] ? below : above, far = below_first[axis] ? above : below;
-            if (tsplit > tfar) {
+            if (tsplit > tfar + fabsf(tfar) * KD_SPLIT_MARGIN) {
                 at = near;
-            } else if (tsplit < tnear) {
+            } else if (tsplit < tnear - fabsf(tnear) * KD_SPLIT_MARGIN) {
                 at = far;
             } else {
                 todo[ntodo].node = far;
@@ -136,7 +145,7 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
                 best_v = v;
                 best_tri = tri;
                 limit = nextafterf(t, INFINITY);
-                stop = t + fabsf(t) * 0x1p-20f;
+                stop = t + fabsf(t) * KD_SPLIT_MARGIN;
             }
         }
         /* next: the nearest pending child that can still hold a closer hit */

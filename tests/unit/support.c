@@ -2,6 +2,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "arbor/camera.h"
 #include "support.h"
@@ -118,4 +119,33 @@ arbor_ray *test_protocol_rays(const arbor_mesh *m, int stride, size_t *n)
 int test_close(float a, float b, float rel)
 {
     return fabsf(a - b) <= rel * fmaxf(fabsf(a), fabsf(b));
+}
+
+arbor_vec3 *test_vertices_and_edge_midpoints(const arbor_mesh *m, size_t *n)
+{
+    arbor_vec3 *targets = malloc((m->nverts + 3 * (size_t)m->ntris) * sizeof *targets);
+    if (targets == NULL)
+        abort();
+    memcpy(targets, m->verts, m->nverts * sizeof *targets);
+    *n = m->nverts;
+    for (uint32_t t = 0; t < m->ntris; t++)
+        for (int k = 0; k < 3; k++) {
+            uint32_t a = m->tri_verts[3 * t + k], b = m->tri_verts[3 * t + (k + 1) % 3];
+            if (a < b)
+                targets[(*n)++] = vec3_scale(vec3_add(m->verts[a], m->verts[b]), 0.5f);
+        }
+    return targets;
+}
+
+arbor_ray *test_aimed_rays(const arbor_vec3 *origins, size_t norigins, const arbor_vec3 *targets, size_t ntargets)
+{
+    arbor_ray *rays = malloc(norigins * ntargets * sizeof *rays);
+    if (rays == NULL)
+        abort();
+    for (size_t o = 0; o < norigins; o++)
+        for (size_t t = 0; t < ntargets; t++) {
+            arbor_ray r = {origins[o], 0.0f, vec3_sub(targets[t], origins[o]), INFINITY};
+            rays[o * ntargets + t] = r;
+        }
+    return rays;
 }

@@ -1,7 +1,7 @@
 /*
  * support.h - helpers shared by the unit tests: where the real models are,
- * a fixed-seed random generator, random rays and triangle soups, and the
- * PROTOCOL.md primary rays.
+ * a fixed-seed random generator, random rays and triangle soups, rays aimed
+ * through a mesh's vertices and edges, and the PROTOCOL.md primary rays.
  */
 #ifndef ARBOR_TEST_SUPPORT_H
 #define ARBOR_TEST_SUPPORT_H
@@ -35,6 +35,16 @@ void test_random_soup(arbor_mesh *m, uint32_t n, uint64_t seed);
 /* PROTOCOL.md's primary rays for the mesh, every `stride`-th pixel in x and
  * y (stride 1 = all 1024 x 768); *n gets the count. Caller frees. */
 arbor_ray *test_protocol_rays(const arbor_mesh *m, int stride, size_t *n);
+
+/* Every vertex of m and the midpoint of every edge; in a closed mesh wound
+ * consistently, each edge once (taken where it runs from the lower to the
+ * higher vertex index, which is in exactly one of its two triangles), so
+ * *n = nverts + 3 ntris / 2. Caller frees. */
+arbor_vec3 *test_vertices_and_edge_midpoints(const arbor_mesh *m, size_t *n);
+
+/* A ray from each origin exactly through each target (direction target - o,
+ * passing it at t = 1), origins major; t in (0, inf). Caller frees. */
+arbor_ray *test_aimed_rays(const arbor_vec3 *origins, size_t norigins, const arbor_vec3 *targets, size_t ntargets);
 
 /* |a - b| <= rel * max(|a|, |b|) */
 int test_close(float a, float b, float rel);

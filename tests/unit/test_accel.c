@@ -2,8 +2,9 @@
  * test_accel.c - every tree kind and builder against brute force, through
  * the common accel interface, on real models, the project's own models and
  * a random soup: 100k random rays (closest hit and any hit) and PROTOCOL.md's
- * primary rays. The brute-force answers are computed once per model and
- * shared by all eight trees.
+ * primary rays, and rays aimed through closed meshes' vertices and edges.
+ * The brute-force answers are computed once per model and shared by all
+ * eight trees.
  */
 #include <math.h>
 #include <stdio.h>
@@ -104,6 +105,26 @@ static size_t check_occluded(const arbor_accel *tree, const truth_set *ts, char 
     return bad;
 }
 
+/* A tree of that kind and builder over m, which the validator accepts. */
+static arbor_accel *build_valid(const arbor_mesh *m, arbor_accel_kind kind, arbor_builder builder, const char *what)
+{
+    arbor_build_opts o;
+    arbor_build_opts_init(&o, kind, builder);
+    arbor_err e;
+    arbor_accel *tree = arbor_accel_build(m, &o, &e);
+    if (tree == NULL) {
+        char f[768];
+        snprintf(f, sizeof f, "%s: build failed: %s", what, e.msg);
+        TEST_FAIL_MESSAGE(f);
+    }
+    if (!arbor_accel_validate(tree, &e)) {
+        char f[768];
+        snprintf(f, sizeof f, "%s: invalid tree: %s", what, e.msg);
+        TEST_FAIL_MESSAGE(f);
+    }
+    return tree;
+}
+
 /* Builds every kind x builder over m and checks each against the truth sets. */
 static void check_all_trees(const char *name, const arbor_mesh *m, const truth_set *random_set,
                             const truth_set *protocol_set)
@@ -113,20 +134,7 @@ static void check_all_trees(const char *name, const arbor_mesh *m, const truth_s
             char what[128], msg[512] = "";
             snprintf(what, sizeof what, "%s %s %s", name, arbor_accel_kind_name((arbor_accel_kind)k),
                      arbor_builder_name((arbor_builder)b));
-            arbor_build_opts o;
-            arbor_build_opts_init(&o, (arbor_accel_kind)k, (arbor_builder)b);
-            arbor_err e;
-            arbor_accel *tree = arbor_accel_build(m, &o, &e);
-            if (tree == NULL) {
-                char f[768];
-                snprintf(f, sizeof f, "%s: build failed: %s", what, e.msg);
-                TEST_FAIL_MESSAGE(f);
-            }
-            if (!arbor_accel_validate(tree, &e)) {
-                char f[768];
-                snprintf(f, sizeof f, "%s: invalid tree: %s", what, e.msg);
-                TEST_FAIL_MESSAGE(f);
-            }
+            arbor_accel *tree = build_valid(m, (arbor_accel_kind)k, (arbor_builder)b, what);
             size_t bad_r = check_closest(tree, m, random_set, msg, sizeof msg);
             size_t bad_o = bad_r ? 0 : check_occluded(tree, random_set, msg, sizeof msg);
             size_t bad_p = bad_r || bad_o ? 0 : check_closest(tree, m, protocol_set, msg, sizeof msg);
@@ -210,6 +218,65 @@ static void test_random_soup_10k(void)
     arbor_mesh_free(&m);
 }
 
+/* Rays from inside a closed mesh aimed exactly through its vertices and edge
+ * midpoints: where a triangle test's edge functions come out exactly zero and
+ * the watertight test decides in double precision (which the BVH's four-lane
+ * test does lane by lane). Every tree must hit every ray, at brute force's
+ * distance. To the ulp, not exactly: at a shared vertex each triangle's
+ * distance rounds its own way, and a box entry rounded past the nearest one
+ * may leave a tree the other triangle, an ulp farther. */
+static void check_aimed(const char *name, const arbor_mesh *m, const arbor_vec3 *origins, size_t norigins)
+{
+    size_t ntargets;
+    arbor_vec3 *targets = test_vertices_and_edge_midpoints(m, &ntargets);
+    truth_set ts;
+    truth_compute(&ts, m, test_aimed_rays(origins, norigins, targets, ntargets), norigins * ntargets);
+    free(targets);
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
+        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
+            char what[128], msg[512] = "";
+            snprintf(what, sizeof what, "%s %s %s", name, arbor_accel_kind_name((arbor_accel_kind)k),
+                     arbor_builder_name((arbor_builder)b));
+            arbor_accel *tree = build_valid(m, (arbor_accel_kind)k, (arbor_builder)b, what);
+            size_t bad = 0;
+            for (size_t i = 0; i < ts.n; i++) {
+                arbor_ray r = ts.rays[i];
+                arbor_hit h;
+                bool found = arbor_accel_intersect(tree, &r, &h);
+                if ((!found || !ts.found[i] || !test_close(h.t, ts.hit[i].t, 1e-6f) || !hit_is_real(m, &ts.rays[i], &h)) &&
+                    bad++ == 0)
+                    snprintf(msg, sizeof msg, "ray %zu: tree %s t=%.9g, brute %s t=%.9g", i, found ? "hit" : "miss",
+                             found ? (double)h.t : 0.0, ts.found[i] ? "hit" : "miss", (double)ts.hit[i].t);
+            }
+            arbor_accel_free(tree);
+            if (bad) {
+                char f[768];
+                snprintf(f, sizeof f, "%s: %zu of %zu aimed rays differ; first: %s", what, bad, ts.n, msg);
+                TEST_FAIL_MESSAGE(f);
+            }
+        }
+    truth_free(&ts);
+}
+
+static void test_rays_through_vertices_and_edges(void)
+{
+    arbor_mesh m;
+    arbor_err e;
+    const arbor_vec3 in_sphere[] = {vec3(0, 0, 0), vec3(0.3f, -0.2f, 0.1f), vec3(-0.55f, 0.4f, 0.25f),
+                                    vec3(0.123f, 0.456f, -0.789f)};
+    arbor_mesh_init(&m);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_gen(ARBOR_GEN_SPHERE, (arbor_gen_params){3, ARBOR_GEN_UNSET}, &m, &e), e.msg);
+    check_aimed("sphere level 3", &m, in_sphere, sizeof in_sphere / sizeof in_sphere[0]);
+    arbor_mesh_free(&m);
+    /* centres of two solid cells of the level-2 sponge's 9^3 lattice */
+    const arbor_vec3 in_sponge[] = {vec3(-1 + 1.0f / 9, -1 + 1.0f / 9, -1 + 1.0f / 9),
+                                    vec3(-1 + 9.0f / 9, -1 + 1.0f / 9, -1 + 1.0f / 9)};
+    arbor_mesh_init(&m);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_gen(ARBOR_GEN_MENGER, (arbor_gen_params){2, ARBOR_GEN_UNSET}, &m, &e), e.msg);
+    check_aimed("menger level 2", &m, in_sponge, sizeof in_sponge / sizeof in_sponge[0]);
+    arbor_mesh_free(&m);
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -218,5 +285,6 @@ int main(void)
     RUN_TEST(test_castle);
     RUN_TEST(test_bunny);
     RUN_TEST(test_own_models);
+    RUN_TEST(test_rays_through_vertices_and_edges);
     return UNITY_END();
 }

@@ -594,44 +594,12 @@ static void test_watertight_random_rays_from_inside_sphere(void)
     arbor_mesh_free(&m);
 }
 
-/* Rays from each origin exactly towards each target (direction target - o,
- * so the ray passes through the target at t = 1). */
-static arbor_ray *aimed_rays(const arbor_vec3 *origins, size_t norigins, const arbor_vec3 *targets, size_t ntargets)
-{
-    arbor_ray *rays = malloc(norigins * ntargets * sizeof *rays);
-    TEST_ASSERT_NOT_NULL(rays);
-    for (size_t o = 0; o < norigins; o++)
-        for (size_t t = 0; t < ntargets; t++) {
-            arbor_ray r = {origins[o], 0.0f, vec3_sub(targets[t], origins[o]), INFINITY};
-            rays[o * ntargets + t] = r;
-        }
-    return rays;
-}
-
-/* Every vertex and the midpoint of every edge of m. In a closed, consistently
- * wound mesh each edge runs from its lower to its higher index in exactly one
- * of its two triangles, so taking only those lists each midpoint once. */
-static arbor_vec3 *vertices_and_edge_midpoints(const arbor_mesh *m, size_t *n)
-{
-    arbor_vec3 *targets = malloc((m->nverts + 3 * (size_t)m->ntris) * sizeof *targets);
-    TEST_ASSERT_NOT_NULL(targets);
-    memcpy(targets, m->verts, m->nverts * sizeof *targets);
-    *n = m->nverts;
-    for (uint32_t t = 0; t < m->ntris; t++)
-        for (int k = 0; k < 3; k++) {
-            uint32_t a = m->tri_verts[3 * t + k], b = m->tri_verts[3 * t + (k + 1) % 3];
-            if (a < b)
-                targets[(*n)++] = vec3_scale(vec3_add(m->verts[a], m->verts[b]), 0.5f);
-        }
-    TEST_ASSERT_EQUAL_UINT64(m->nverts + 3 * (size_t)m->ntris / 2, *n);
-    return targets;
-}
-
 static void assert_aimed_rays_hit(const arbor_mesh *m, const arbor_vec3 *origins, size_t norigins)
 {
     size_t ntargets;
-    arbor_vec3 *targets = vertices_and_edge_midpoints(m, &ntargets);
-    arbor_ray *rays = aimed_rays(origins, norigins, targets, ntargets);
+    arbor_vec3 *targets = test_vertices_and_edge_midpoints(m, &ntargets);
+    TEST_ASSERT_EQUAL_UINT64(m->nverts + 3 * (size_t)m->ntris / 2, ntargets);
+    arbor_ray *rays = test_aimed_rays(origins, norigins, targets, ntargets);
     size_t n = norigins * ntargets;
     arbor_hit *hits = malloc(n * sizeof *hits);
     size_t misses = count_misses(m, rays, n, hits);
