@@ -21,7 +21,7 @@
  *   ao       ambient occlusion: the fraction of ao_samples cosine-weighted
  *            rays of length ao_radius * d that escape, as grey.
  *   heat     false colour (blue, cyan, green, yellow, red, white) of each
- *            pixel's traversal cost = nodes visited + triangles tested by
+ *            pixel's traversal cost = node steps + triangles tested by
  *            its primary rays (mean over samples); the top of the scale is
  *            the frame's 99th percentile, reported with the max and mean.
  * d is the model's diagonal |B.max - B.min|; secondary rays start at

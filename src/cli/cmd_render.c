@@ -27,7 +27,7 @@ static void usage(FILE *out)
             "  --ao-samples N          rays per AO sample, 1..%d (default 8)\n"
             "  --seed N                frame seed for the sample positions (default 1)\n"
             "  --threads N             render threads (default: one per core)\n"
-            "  --counts                also report nodes visited and triangles tested per primary ray\n"
+            "  --counts                also report node steps and triangle tests per primary ray\n"
             "Without --yaw/--pitch/--distance the camera is PROTOCOL.md's view.\n",
             ARBOR_MAX_IMAGE_SIZE, ARBOR_MAX_SPP, ARBOR_MAX_BOUNCES, ARBOR_MAX_AO_SAMPLES);
 }
@@ -149,7 +149,7 @@ static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_acce
                arbor_render_mode_name(a->mode), a->spp, arbor_pool_threads(pool), r->render_ms,
                (unsigned long long)r->rays, r->mrays_per_s);
         if (r->counted)
-            printf("per primary ray: %.1f nodes visited, %.1f triangles tested\n", r->mean_nodes, r->mean_tris);
+            printf("per primary ray: %.1f node steps (kd: nodes visited; bvh: child boxes tested), %.1f triangles tested\n", r->mean_nodes, r->mean_tris);
         if (a->mode == ARBOR_MODE_HEAT)
             printf("heat scale: %.1f (99th percentile; max %.1f, mean %.1f nodes + triangles per pixel)\n",
                    r->heat_scale, r->heat_max, r->heat_mean);
