@@ -57,6 +57,17 @@ static inline void arbor_ray_prepare(const arbor_ray *r, arbor_ray_prep *p)
     p->sz = 1.0f / dz;
 }
 
+/* The edge functions U, V, W of the sheared triangle, in double precision:
+ * what the test falls back to when one is exactly zero in single precision.
+ * Shared by every triangle test, scalar or SIMD, so they decide edges alike. */
+static inline void arbor_edge_functions_exact(float Ax, float Ay, float Bx, float By, float Cx, float Cy,
+                                              float *U, float *V, float *W)
+{
+    *U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
+    *V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
+    *W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
+}
+
 /* Tests the triangle (a, b, c) against the ray for t in (r->tmin, tmax).
  * On a hit stores t and the barycentrics of b and c, and returns true. */
 static inline bool arbor_triangle_intersect(const arbor_ray *r, const arbor_ray_prep *p,
@@ -76,9 +87,7 @@ static inline bool arbor_triangle_intersect(const arbor_ray *r, const arbor_ray_
     float W = Bx * Ay - By * Ax;
     if (U == 0.0f || V == 0.0f || W == 0.0f) {
         /* on an edge in single precision: decide it exactly in double */
-        U = (float)((double)Cx * (double)By - (double)Cy * (double)Bx);
-        V = (float)((double)Ax * (double)Cy - (double)Ay * (double)Cx);
-        W = (float)((double)Bx * (double)Ay - (double)By * (double)Ax);
+        arbor_edge_functions_exact(Ax, Ay, Bx, By, Cx, Cy, &U, &V, &W);
     }
     if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f))
         return false;

@@ -87,6 +87,8 @@ typedef struct {
 static inline bool bvh_ref_is_leaf(uint64_t ref) { return (ref & BVH_REF_LEAF) != 0; }
 static inline uint32_t bvh_ref_index(uint64_t ref) { return (uint32_t)ref; }
 static inline uint32_t bvh_ref_tris(uint64_t ref) { return (uint32_t)(ref >> 32) & 0x7fffffffu; }
+/* The packs a leaf of that many triangles fills. */
+static inline uint32_t bvh_packs_for(uint32_t tris) { return (tris + BVH_WIDTH - 1) / BVH_WIDTH; }
 
 /* bvh_build.c: builds the tree for o->builder and fills every statistic but
  * build_ms. NULL (e filled) when memory runs out. */
@@ -99,8 +101,9 @@ bool bvh_occluded(const void *impl, const arbor_ray *r);
 
 /* Arrays of nodes and packs are 64-byte aligned, so that no node straddles
  * more cache lines than it must. Both builds allocate them for the worst
- * case, write them once, then shrink them to the part used (keeping the
- * alignment; NULL, with p freed, when memory runs out). bvh_build.c. */
+ * case, write them once, then shrink them to the part used, keeping the
+ * alignment: p itself when realloc cannot shrink it, NULL (p freed) only
+ * when an aligned copy was needed and memory ran out. bvh_build.c. */
 void *bvh_alloc_aligned(size_t bytes);
 void *bvh_shrink_aligned(void *p, size_t used);
 

@@ -13,8 +13,8 @@
  * beyond the closest hit so far is skipped. An any-hit query needs no order
  * and takes the children as they come. A leaf's packs are tested four
  * triangles per step (pack_test), with the arithmetic of
- * arbor_triangle_intersect lane by lane, so every tree finds the hits brute
- * force finds, to the bit.
+ * arbor_triangle_intersect lane by lane, so each triangle gives exactly the
+ * t, u, v brute force computes for it.
  */
 #include <immintrin.h>
 
@@ -142,11 +142,8 @@ BVH_INLINE int pack_test(const bvh_tri_pack *p, const tri_ray *q, __m128 tmax, p
         _mm_storeu_ps(Cx, cx), _mm_storeu_ps(Cy, cy);
         _mm_storeu_ps(U, u), _mm_storeu_ps(V, v), _mm_storeu_ps(W, w);
         for (int l = 0; l < 4; l++)
-            if (on_edge & (1 << l)) {
-                U[l] = (float)((double)Cx[l] * (double)By[l] - (double)Cy[l] * (double)Bx[l]);
-                V[l] = (float)((double)Ax[l] * (double)Cy[l] - (double)Ay[l] * (double)Cx[l]);
-                W[l] = (float)((double)Bx[l] * (double)Ay[l] - (double)By[l] * (double)Ax[l]);
-            }
+            if (on_edge & (1 << l))
+                arbor_edge_functions_exact(Ax[l], Ay[l], Bx[l], By[l], Cx[l], Cy[l], &U[l], &V[l], &W[l]);
         u = _mm_loadu_ps(U), v = _mm_loadu_ps(V), w = _mm_loadu_ps(W);
     }
     __m128 some_neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(v, zero)), _mm_cmplt_ps(w, zero));
@@ -247,7 +244,7 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                 tri_ray_setup(&tq, r);
                 tq_ready = true;
             }
-            for (uint32_t p = p0; p < p0 + (tris + BVH_WIDTH - 1) / BVH_WIDTH; p++) {
+            for (uint32_t p = p0; p < p0 + bvh_packs_for(tris); p++) {
                 pack_hits ph;
                 int hits = pack_test(&t->packs[p], &tq, _mm_set1_ps(tmax), &ph);
                 if (hits == 0)

@@ -7,16 +7,20 @@
  * single triangle does, so splits that small mostly add box tests. Two
  * packs' worth measured best (bunny, dragon, castle, flowers at 1 thread:
  * against one pack, dragon's shadow rays 2.81 -> 3.19 Mrays/s, bunny's 5.38
- * -> 5.48; three or four packs lose on castle and flowers). Any other binary inner node becomes a wide node whose children are found by
- * opening, among its current children that are not leaves, the one with the
- * largest surface area (the one rays are likeliest to enter), until there are
+ * -> 5.48; three or four packs lose on castle and flowers). Any other
+ * binary inner node becomes a wide node whose children are found by opening,
+ * among its current children that are not leaves, the one with the largest
+ * surface area (the one rays are likeliest to enter), until there are
  * BVH_WIDTH (the rule of Wald et al., "Getting Rid of Packets", 2008, and
  * Embree's BVH4). A subtree's triangles are contiguous in leaf order, so a
  * leaf is a range of tri_index whatever binary leaves it merges.
  *
- * Two passes over the same child choice: one counts wide nodes and packs so
- * that each array is allocated once, aligned, at its final size; the second
- * fills them depth first. Both recurse at most as deep as the binary tree.
+ * One pass, depth first, writes wide nodes and the packs' triangle indices
+ * into arrays sized for the worst case, which are then shrunk to fit (a
+ * counting pass first cost more than it saved: the walk's cache misses on a
+ * large binary tree dominate). The packs' vertices are copied afterwards in a
+ * linear pass, on two threads for large meshes. The recursion is at most as
+ * deep as the binary tree.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -56,10 +60,9 @@ static bool becomes_leaf(const bvh_tree *t, uint32_t i, tri_range *r)
     return true;
 }
 
-/* What filling shares: the tree, the mesh, the next wide node and pack. */
+/* What filling shares: the tree, the next wide node and pack. */
 typedef struct {
     bvh_tree *t;
-    const arbor_mesh *m;
     uint32_t next_wide, next_pack;
 } wide_ctx;
 
@@ -111,19 +114,14 @@ static int root_children(const wide_ctx *x, uint32_t out[BVH_WIDTH])
     return 1;
 }
 
-static uint32_t packs_for(uint32_t tris)
-{
-    return (tris + BVH_WIDTH - 1) / BVH_WIDTH;
-}
-
 /* Assigns a leaf its packs and their lanes' triangles (UINT32_MAX for the
  * unused lanes); fill_vertices copies the vertices afterwards. */
 static uint64_t fill_leaf(wide_ctx *x, tri_range r)
 {
     uint32_t pack0 = x->next_pack;
-    x->next_pack += packs_for(r.count);
+    x->next_pack += bvh_packs_for(r.count);
     uint32_t *lanes = x->t->pack_tri + BVH_WIDTH * (size_t)pack0;
-    for (uint32_t slot = 0; slot < BVH_WIDTH * packs_for(r.count); slot++)
+    for (uint32_t slot = 0; slot < BVH_WIDTH * bvh_packs_for(r.count); slot++)
         lanes[slot] = slot < r.count ? x->t->tri_index[r.first + slot] : UINT32_MAX;
     return BVH_REF_LEAF | (uint64_t)r.count << 32 | pack0;
 }
@@ -196,7 +194,7 @@ bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, bool parallel, arbor_err *
      * leaves are at most the binary leaves. */
     uint32_t leaves = (t->nnodes + 1) / 2;
     size_t max_wide = leaves > 1 ? leaves - 1 : 1, max_packs = leaves + t->ntris / BVH_WIDTH;
-    wide_ctx x = {t, m, 0, 0};
+    wide_ctx x = {t, 0, 0};
     t->wide = bvh_alloc_aligned(max_wide * sizeof *t->wide);
     t->packs = bvh_alloc_aligned(max_packs * sizeof *t->packs);
     t->pack_tri = malloc(BVH_WIDTH * max_packs * sizeof *t->pack_tri);
@@ -274,10 +272,10 @@ static bool check_pack_lane(wide_check *k, uint32_t p, int lane, bool used, cons
 static bool check_wide_leaf(wide_check *k, uint64_t ref, const arbor_aabb *box)
 {
     uint32_t tris = bvh_ref_tris(ref), pack0 = bvh_ref_index(ref);
-    if (tris == 0 || pack0 != k->next_pack || packs_for(tris) > k->t->npacks - pack0)
+    if (tris == 0 || pack0 != k->next_pack || bvh_packs_for(tris) > k->t->npacks - pack0)
         return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh wide leaf: %u triangles from pack %u (next is %u of %u)", tris,
                           pack0, k->next_pack, k->t->npacks);
-    k->next_pack += packs_for(tris);
+    k->next_pack += bvh_packs_for(tris);
     for (uint32_t p = pack0; p < k->next_pack; p++)
         for (int lane = 0; lane < BVH_WIDTH; lane++)
             if (!check_pack_lane(k, p, lane, (p - pack0) * BVH_WIDTH + (uint32_t)lane < tris, box))
