@@ -51,7 +51,7 @@ typedef struct {
     double mean_leaf_depth;     /* over all leaves; the root is depth 0 */
     double mean_tris_per_leaf;  /* over non-empty leaves */
     uint64_t refs;              /* triangle references in leaves */
-    uint64_t bytes;             /* memory the tree holds (nodes + index arrays) */
+    uint64_t bytes;             /* memory the tree holds: all its arrays (bvh: both layouts) */
     double sah_cost;
 } arbor_tree_stats;
 
