@@ -28,7 +28,7 @@ ARBOR_CFLAGS += -DARBOR_HAVE_EMBREE
 LDLIBS  += -lembree3
 endif
 
-LIB_SRC  = $(wildcard src/core/*.c src/geom/*.c src/accel/*.c src/render/*.c src/store/*.c src/server/*.c)
+LIB_SRC  = $(wildcard src/core/*.c src/geom/*.c src/accel/*.c src/render/*.c src/bench/*.c src/store/*.c src/server/*.c)
 CLI_SRC  = $(wildcard src/cli/*.c)
 TEST_SRC = $(wildcard tests/unit/test_*.c)
 LIB_OBJ  = $(LIB_SRC:%.c=$(BUILD)/obj/%.o)

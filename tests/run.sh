@@ -9,6 +9,8 @@ failed=0
 for bin in "$@"; do
     log=$(mktemp)
     start=$(date +%s)
+    # Say what is running: the accel tests take minutes and silence looks like a hang.
+    echo "run  $(basename "$bin") ..."
     "$bin" >"$log" 2>&1
     rc=$?
     secs=$(( $(date +%s) - start ))
