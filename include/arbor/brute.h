@@ -12,6 +12,7 @@
 #include <stddef.h>
 
 #include "arbor/mesh.h"
+#include "arbor/pool.h"
 #include "arbor/ray.h"
 
 /* Closest hit in (r->tmin, r->tmax); on a hit shrinks r->tmax and fills h.
@@ -21,9 +22,10 @@ bool arbor_brute_intersect(const arbor_mesh *m, arbor_ray *r, arbor_hit *h);
 /* Any hit in (r->tmin, r->tmax). */
 bool arbor_brute_occluded(const arbor_mesh *m, const arbor_ray *r);
 
-/* Closest hits for n rays on `threads` threads (0 = one per core): hit[i] gets
+/* Closest hits for n rays on at most `threads` threads (0 = one per core),
+ * the pool's when pool is not NULL, else threads of its own: hit[i] gets
  * ray i's hit and found[i] whether there was one; rays are not modified. */
-void arbor_brute_intersect_many(const arbor_mesh *m, const arbor_ray *rays, size_t n,
+void arbor_brute_intersect_many(arbor_pool *pool, const arbor_mesh *m, const arbor_ray *rays, size_t n,
                                 arbor_hit *hit, bool *found, int threads);
 
 #endif

@@ -9,10 +9,12 @@
  *
  * A tracer is measured through an arbor_trace_kernel: a tight loop over a
  * slice of a set, called once per chunk of ARBOR_TRACE_CHUNK rays (never per
- * ray). arbor_trace_set runs a set on `threads` threads of its own over a
- * fixed partition (thread k takes chunks k, k + threads, ...), the same for
- * every tracer (at most 256 threads); arbor_time_set repeats whole passes
- * until min_ms have passed.
+ * ray). arbor_trace_set runs a set on at most `threads` threads: with a
+ * pool, the calling thread and up to threads - 1 of the pool's idle workers
+ * claim chunks one at a time; without one (pool NULL), on `threads` threads
+ * of its own over a fixed partition (thread k takes chunks k, k + threads,
+ * ...), which a benchmark measuring exactly N threads wants (at most 256
+ * threads). arbor_time_set repeats whole passes until min_ms have passed.
  */
 #ifndef ARBOR_RAYSETS_H
 #define ARBOR_RAYSETS_H
@@ -24,6 +26,7 @@
 #include "arbor/accel.h"
 #include "arbor/err.h"
 #include "arbor/mesh.h"
+#include "arbor/pool.h"
 #include "arbor/ray.h"
 
 #define ARBOR_PROTOCOL_WIDTH 1024
@@ -66,8 +69,8 @@ void arbor_accel_kernel(const void *tracer, const arbor_ray *rays, size_t n, boo
 
 /* One pass over the set on `threads` threads (0 = one per core). The
  * tally is summed chunk by chunk in order, so it does not depend on threads. */
-bool arbor_trace_set(arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n, bool any_hit,
-                     int threads, arbor_tally *tally, arbor_err *e);
+bool arbor_trace_set(arbor_pool *pool, arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n,
+                     bool any_hit, int threads, arbor_tally *tally, arbor_err *e);
 
 typedef struct {
     double mrays_per_s;  /* rays of all passes / wall time of all passes */
@@ -77,12 +80,12 @@ typedef struct {
 } arbor_set_timing;
 
 /* Whole passes until at least min_ms have passed. */
-bool arbor_time_set(arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n, bool any_hit,
-                    int threads, double min_ms, arbor_set_timing *out, arbor_err *e);
+bool arbor_time_set(arbor_pool *pool, arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n,
+                    bool any_hit, int threads, double min_ms, arbor_set_timing *out, arbor_err *e);
 
 /* Closest hits of every ray with our tracer on `threads` threads: hits[i]
  * and found[i] for ray i (the reference trace for arbor_raysets_secondary). */
-bool arbor_accel_trace_hits(const arbor_accel *a, const arbor_ray *rays, size_t n, int threads, arbor_hit *hits,
-                            bool *found, arbor_err *e);
+bool arbor_accel_trace_hits(arbor_pool *pool, const arbor_accel *a, const arbor_ray *rays, size_t n, int threads,
+                            arbor_hit *hits, bool *found, arbor_err *e);
 
 #endif

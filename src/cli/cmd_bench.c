@@ -150,7 +150,7 @@ static bool measure_set(void *ctx, double *value, arbor_err *e)
 {
     set_measure *s = ctx;
     arbor_set_timing t;
-    if (!arbor_time_set(s->kernel, s->tracer, s->rays, s->n, s->any_hit, s->threads, SET_MIN_MS, &t, e))
+    if (!arbor_time_set(NULL, s->kernel, s->tracer, s->rays, s->n, s->any_hit, s->threads, SET_MIN_MS, &t, e))
         return false;
     s->tally = t.tally;
     *value = t.mrays_per_s;
@@ -309,7 +309,7 @@ static bool make_sets(const bench_args *a, const arbor_mesh *mesh, arbor_raysets
     bool ok = ref != NULL && hits != NULL && found != NULL;
     if (ref != NULL && !ok)
         arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for the reference trace");
-    ok = ok && arbor_accel_trace_hits(ref, sets->primary, sets->nprimary, a->threads, hits, found, e) &&
+    ok = ok && arbor_accel_trace_hits(NULL, ref, sets->primary, sets->nprimary, a->threads, hits, found, e) &&
          arbor_raysets_secondary(mesh, sets, hits, found, DIFFUSE_SEED, e);
     free(hits);
     free(found);

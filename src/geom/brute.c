@@ -61,9 +61,10 @@ static void *brute_slice_run(void *arg)
     return NULL;
 }
 
-void arbor_brute_intersect_many(const arbor_mesh *m, const arbor_ray *rays, size_t n,
+void arbor_brute_intersect_many(arbor_pool *pool, const arbor_mesh *m, const arbor_ray *rays, size_t n,
                                 arbor_hit *hit, bool *found, int threads)
 {
+    (void)pool; /* not used yet: the pool's parallel-for comes next */
     if (threads <= 0)
         threads = arbor_cpu_count();
     if ((size_t)threads > n)

@@ -206,9 +206,10 @@ static bool pass_init(set_pass *pass, arbor_trace_kernel kernel, const void *tra
     return true;
 }
 
-bool arbor_trace_set(arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n, bool any_hit,
-                     int threads, arbor_tally *tally, arbor_err *e)
+bool arbor_trace_set(arbor_pool *pool, arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n,
+                     bool any_hit, int threads, arbor_tally *tally, arbor_err *e)
 {
+    (void)pool; /* not used yet: the pool's parallel-for comes next */
     set_pass pass;
     if (!pass_init(&pass, kernel, tracer, rays, n, any_hit, e))
         return false;
@@ -217,9 +218,10 @@ bool arbor_trace_set(arbor_trace_kernel kernel, const void *tracer, const arbor_
     return ok;
 }
 
-bool arbor_time_set(arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n, bool any_hit,
-                    int threads, double min_ms, arbor_set_timing *out, arbor_err *e)
+bool arbor_time_set(arbor_pool *pool, arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n,
+                    bool any_hit, int threads, double min_ms, arbor_set_timing *out, arbor_err *e)
 {
+    (void)pool; /* not used yet: the pool's parallel-for comes next */
     set_pass pass;
     if (!pass_init(&pass, kernel, tracer, rays, n, any_hit, e))
         return false;
@@ -257,9 +259,10 @@ static void hits_pass_chunk(void *ctx, size_t chunk)
     }
 }
 
-bool arbor_accel_trace_hits(const arbor_accel *a, const arbor_ray *rays, size_t n, int threads, arbor_hit *hits,
-                            bool *found, arbor_err *e)
+bool arbor_accel_trace_hits(arbor_pool *pool, const arbor_accel *a, const arbor_ray *rays, size_t n, int threads,
+                            arbor_hit *hits, bool *found, arbor_err *e)
 {
+    (void)pool; /* not used yet: the pool's parallel-for comes next */
     hits_pass pass = {a, rays, n, hits, found};
     chunk_plan plan = {hits_pass_chunk, &pass, chunk_count(n), threads};
     return run_chunks(&plan, e);

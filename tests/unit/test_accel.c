@@ -37,7 +37,7 @@ static void truth_compute(truth_set *ts, const arbor_mesh *m, arbor_ray *rays, s
     ts->n = n;
     ts->hit = malloc(n * sizeof *ts->hit);
     ts->found = malloc(n * sizeof *ts->found);
-    arbor_brute_intersect_many(m, rays, n, ts->hit, ts->found, 0);
+    arbor_brute_intersect_many(NULL, m, rays, n, ts->hit, ts->found, 0);
 }
 
 static void truth_free(truth_set *ts)

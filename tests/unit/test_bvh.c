@@ -71,7 +71,7 @@ static truth_set truth_make(const arbor_mesh *m, const arbor_ray *rays, size_t n
     ts.found = malloc(2 * n * sizeof *ts.found);
     TEST_ASSERT_TRUE(ts.rays && ts.hit && ts.found);
     memcpy(ts.rays, rays, n * sizeof *rays);
-    arbor_brute_intersect_many(m, ts.rays, n, ts.hit, ts.found, 0);
+    arbor_brute_intersect_many(NULL, m, ts.rays, n, ts.hit, ts.found, 0);
     ts.n = n;
     for (size_t i = 1; i < n; i += 8) {
         if (!ts.found[i])
@@ -81,7 +81,7 @@ static truth_set truth_make(const arbor_mesh *m, const arbor_ray *rays, size_t n
         ts.rays[ts.n] = rays[i];
         ts.rays[ts.n++].tmax = ts.hit[i].t;
     }
-    arbor_brute_intersect_many(m, ts.rays + n, ts.n - n, ts.hit + n, ts.found + n, 0);
+    arbor_brute_intersect_many(NULL, m, ts.rays + n, ts.n - n, ts.hit + n, ts.found + n, 0);
     return ts;
 }
 

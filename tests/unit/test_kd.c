@@ -316,7 +316,7 @@ static void truth_compute(truth *ts, const arbor_mesh *m)
         else if (i % 3 == 2)
             ts->rays[i].tmax = 1.5f * diag * test_rng_float(&g);
     }
-    arbor_brute_intersect_many(m, ts->rays, ts->n, ts->hit, ts->found, 0);
+    arbor_brute_intersect_many(NULL, m, ts->rays, ts->n, ts->hit, ts->found, 0);
     occluded_job first = {m, ts->rays, ts->occluded, 0, ts->n / 2}, second = {m, ts->rays, ts->occluded, ts->n / 2, ts->n};
     arbor_fork_join(occluded_run, &first, occluded_run, &second, true);
     ts->hits = 0;

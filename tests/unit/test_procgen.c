@@ -556,7 +556,7 @@ static size_t count_misses(const arbor_mesh *m, const arbor_ray *rays, size_t n,
 {
     bool *found = malloc(n * sizeof *found);
     TEST_ASSERT_NOT_NULL(found);
-    arbor_brute_intersect_many(m, rays, n, hits, found, 2);
+    arbor_brute_intersect_many(NULL, m, rays, n, hits, found, 2);
     size_t misses = 0;
     for (size_t i = 0; i < n; i++)
         misses += !found[i];

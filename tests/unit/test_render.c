@@ -217,7 +217,7 @@ static void test_protocol_primary_hits_agree_with_brute_force(void)
     arbor_tally tally[ARBOR_ACCEL_KIND_COUNT];
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
         arbor_accel *a = build(&m, (arbor_accel_kind)k);
-        TEST_ASSERT_TRUE(arbor_trace_set(arbor_accel_kernel, a, sets.primary, sets.nprimary, false, 2, &tally[k], &e));
+        TEST_ASSERT_TRUE(arbor_trace_set(NULL, arbor_accel_kernel, a, sets.primary, sets.nprimary, false, 2, &tally[k], &e));
         arbor_accel_free(a);
     }
     TEST_ASSERT_TRUE(tally[0].hits > 100000);
@@ -231,7 +231,7 @@ static void test_protocol_primary_hits_agree_with_brute_force(void)
             rays[n++] = sets.primary[(size_t)y * 1024 + (size_t)x];
     arbor_hit *brute = malloc(n * sizeof *brute);
     bool *brute_found = malloc(n * sizeof *brute_found);
-    arbor_brute_intersect_many(&m, rays, n, brute, brute_found, 2);
+    arbor_brute_intersect_many(NULL, &m, rays, n, brute, brute_found, 2);
     bool *found[ARBOR_ACCEL_KIND_COUNT];
     float *t[ARBOR_ACCEL_KIND_COUNT];
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
@@ -276,7 +276,7 @@ static void test_protocol_secondary_sets(void)
     arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
     arbor_hit *hits = malloc(sets.nprimary * sizeof *hits);
     bool *found = malloc(sets.nprimary * sizeof *found);
-    TEST_ASSERT_TRUE(arbor_accel_trace_hits(a, sets.primary, sets.nprimary, 2, hits, found, &e));
+    TEST_ASSERT_TRUE(arbor_accel_trace_hits(NULL, a, sets.primary, sets.nprimary, 2, hits, found, &e));
     TEST_ASSERT_TRUE(arbor_raysets_secondary(&m, &sets, hits, found, 5, &e));
     size_t nhits = 0;
     for (size_t i = 0; i < sets.nprimary; i++)
