@@ -19,7 +19,10 @@ typedef enum {
     ARBOR_ERR_PARSE,     /* malformed input: names file and line */
     ARBOR_ERR_INVALID,   /* a bad argument or option value */
     ARBOR_ERR_NOMEM,     /* allocation failed */
-    ARBOR_ERR_CANCELLED  /* the caller asked the work to stop */
+    ARBOR_ERR_CANCELLED, /* the caller asked the work to stop */
+    ARBOR_ERR_NOT_FOUND, /* no such model, tree or job */
+    ARBOR_ERR_EXISTS,    /* the name is taken */
+    ARBOR_ERR_NOSPACE    /* it does not fit in the memory budget */
 } arbor_status;
 
 typedef struct {

@@ -27,6 +27,11 @@
  * d is the model's diagonal |B.max - B.min|; secondary rays start at
  * p + 1e-4 d n, n the geometric normal turned toward the incoming ray.
  *
+ * Regions: a frame may render only a rectangle of itself. Since a pixel's
+ * value depends only on the parameters and its own (x, y), a region's pixels
+ * are bit for bit those of the whole frame there (in heat mode, given the
+ * whole frame's heat_scale).
+ *
  * Anti-aliasing: spp = 1 traces each pixel's centre (the protocol's rays).
  * When spp is a square k*k, sample s lies jittered in cell (s % k, s / k) of
  * a k x k grid over the pixel; otherwise the samples are a Latin hypercube
@@ -63,8 +68,14 @@ typedef enum {
     ARBOR_MODE_COUNT
 } arbor_render_mode;
 
+/* A rectangle of the frame in pixels; w = h = 0 means the whole frame. */
 typedef struct {
-    arbor_camera camera;     /* its width and height are the image's */
+    int x, y, w, h;
+} arbor_region;
+
+typedef struct {
+    arbor_camera camera;     /* its width and height are the whole frame's */
+    arbor_region region;     /* render only these pixels of the frame (the image is w x h) */
     arbor_render_mode mode;
     int spp;                 /* samples per pixel, 1..ARBOR_MAX_SPP */
     int max_bounces;         /* mirror reflections, 0..ARBOR_MAX_BOUNCES */
@@ -72,11 +83,12 @@ typedef struct {
     float ao_radius;         /* in units of the model's diagonal, > 0 */
     arbor_vec3 background;   /* colour of misses, components in [0, 1] */
     uint64_t seed;           /* frame seed for the per-pixel random numbers */
+    double heat_scale;       /* heat mode: the cost at the top of the scale; 0 = the image's 99th percentile */
     bool count_primary;      /* also report mean nodes and triangles per primary ray */
 } arbor_render_params;
 
 typedef struct {
-    int width, height;
+    int width, height;         /* of the image: the region's size */
     uint8_t *rgb;              /* width * height * 3, rows top to bottom; owned by the frame */
     bool cancelled;            /* some tiles never rendered */
     double render_ms;          /* first tile started to last tile finished */

@@ -33,6 +33,9 @@ const char *arbor_status_name(arbor_status status)
     case ARBOR_ERR_INVALID: return "invalid";
     case ARBOR_ERR_NOMEM: return "nomem";
     case ARBOR_ERR_CANCELLED: return "cancelled";
+    case ARBOR_ERR_NOT_FOUND: return "not_found";
+    case ARBOR_ERR_EXISTS: return "exists";
+    case ARBOR_ERR_NOSPACE: return "nospace";
     }
     return "unknown";
 }

@@ -44,6 +44,7 @@ struct arbor_frame {
     arbor_vec3 light;
     arbor_vec3 background_linear;
     float depth_near, depth_far;
+    arbor_region region;        /* the pixels rendered; the whole frame when none was asked for */
     int tiles_x, tiles_y;
 
     /* written by the tile tasks, each to its own pixels / slot */
@@ -113,6 +114,13 @@ bool arbor_render_params_validate(const arbor_render_params *p, arbor_err *e)
         return arbor_fail(e, ARBOR_ERR_INVALID, "ao radius must be a positive number, not %g", (double)p->ao_radius);
     if (!unit_interval(p->background.x) || !unit_interval(p->background.y) || !unit_interval(p->background.z))
         return arbor_fail(e, ARBOR_ERR_INVALID, "background components must be in 0..1");
+    const arbor_region *g = &p->region;
+    if (!(g->w == 0 && g->h == 0 && g->x == 0 && g->y == 0) &&
+        (g->w < 1 || g->h < 1 || g->x < 0 || g->y < 0 || g->x > c->width - g->w || g->y > c->height - g->h))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "region %d,%d %dx%d is not inside the %dx%d frame", g->x, g->y, g->w,
+                          g->h, c->width, c->height);
+    if (!(p->heat_scale >= 0.0) || !isfinite(p->heat_scale))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "heat_scale must be a positive number, not %g", p->heat_scale);
     if (!isfinite(c->tan_half_fov) || !(c->tan_half_fov > 0.0f))
         return arbor_fail(e, ARBOR_ERR_INVALID, "the camera's field of view must be in (0, 180) degrees");
     return true;
@@ -330,7 +338,7 @@ static void render_pixel(arbor_frame *f, int x, int y, tile_tally *t)
         arbor_ray r = arbor_camera_ray(&p->camera, (float)x + dx, (float)y + dy);
         sum = vec3_add(sum, shade_sample(f, r, &g, t));
     }
-    size_t index = (size_t)y * (size_t)p->camera.width + (size_t)x;
+    size_t index = (size_t)(y - f->region.y) * (size_t)f->region.w + (size_t)(x - f->region.x);
     if (p->mode == ARBOR_MODE_HEAT) {
         f->heat[index] = (float)(t->nodes + t->tris - cost_before) / (float)spp;
         return;
@@ -348,11 +356,11 @@ static void render_tile(void *ctx, uint32_t task)
     arbor_frame *f = ctx;
     if (!atomic_exchange(&f->started, true))
         f->start_ms = arbor_now_ms();
-    int x0 = (int)(task % (uint32_t)f->tiles_x) * ARBOR_TILE_SIZE;
-    int y0 = (int)(task / (uint32_t)f->tiles_x) * ARBOR_TILE_SIZE;
+    int x0 = f->region.x + (int)(task % (uint32_t)f->tiles_x) * ARBOR_TILE_SIZE;
+    int y0 = f->region.y + (int)(task / (uint32_t)f->tiles_x) * ARBOR_TILE_SIZE;
     int x1 = x0 + ARBOR_TILE_SIZE, y1 = y0 + ARBOR_TILE_SIZE;
-    if (x1 > f->params.camera.width) x1 = f->params.camera.width;
-    if (y1 > f->params.camera.height) y1 = f->params.camera.height;
+    if (x1 > f->region.x + f->region.w) x1 = f->region.x + f->region.w;
+    if (y1 > f->region.y + f->region.h) y1 = f->region.y + f->region.h;
     tile_tally t = {0, 0, 0};
     for (int y = y0; y < y1; y++)
         for (int x = x0; x < x1; x++)
@@ -377,7 +385,7 @@ static arbor_vec3 heat_colour(float v)
  * reaches it: HEAT_BINS bins over [0, max]), then the colours. */
 static void colour_heat(arbor_frame *f)
 {
-    size_t n = (size_t)f->params.camera.width * (size_t)f->params.camera.height;
+    size_t n = (size_t)f->region.w * (size_t)f->region.h;
     double max = 0.0, sum = 0.0;
     for (size_t i = 0; i < n; i++) {
         sum += f->heat[i];
@@ -404,7 +412,7 @@ static void colour_heat(arbor_frame *f)
     }
     f->result.heat_max = max;
     f->result.heat_mean = sum / (double)n;
-    f->result.heat_scale = scale > 0.0 ? scale : 1.0;
+    f->result.heat_scale = f->params.heat_scale > 0.0 ? f->params.heat_scale : scale > 0.0 ? scale : 1.0;
     for (size_t i = 0; i < n; i++)
         store_rgb(f->rgb + 3 * i, heat_colour((float)(f->heat[i] / f->result.heat_scale)));
 }
@@ -425,7 +433,7 @@ static void frame_done(void *ctx, bool cancelled)
     r->render_ms = atomic_load(&f->started) ? end_ms - f->start_ms : 0.0;
     r->mrays_per_s = r->render_ms > 0.0 ? (double)r->rays / (r->render_ms * 1e3) : 0.0;
     if (f->count) {
-        double primary = (double)f->params.camera.width * f->params.camera.height * f->params.spp;
+        double primary = (double)f->region.w * f->region.h * f->params.spp;
         r->counted = true;
         r->mean_nodes = (double)nodes / primary;
         r->mean_tris = (double)tris / primary;
@@ -472,10 +480,15 @@ static void frame_setup(arbor_frame *f)
     box_distances(f->mesh->bounds, c->eye, &f->depth_near, &f->depth_far);
     if (!(f->depth_far > f->depth_near))
         f->depth_far = f->depth_near + 1.0f;
-    f->tiles_x = (c->width + ARBOR_TILE_SIZE - 1) / ARBOR_TILE_SIZE;
-    f->tiles_y = (c->height + ARBOR_TILE_SIZE - 1) / ARBOR_TILE_SIZE;
-    f->result.width = c->width;
-    f->result.height = c->height;
+    f->region = p->region;
+    if (f->region.w == 0) {
+        f->region.w = c->width;
+        f->region.h = c->height;
+    }
+    f->tiles_x = (f->region.w + ARBOR_TILE_SIZE - 1) / ARBOR_TILE_SIZE;
+    f->tiles_y = (f->region.h + ARBOR_TILE_SIZE - 1) / ARBOR_TILE_SIZE;
+    f->result.width = f->region.w;
+    f->result.height = f->region.h;
 }
 
 arbor_frame *arbor_render_submit(arbor_pool *pool, const arbor_accel *a, const arbor_render_params *p,
@@ -495,7 +508,7 @@ arbor_frame *arbor_render_submit(arbor_pool *pool, const arbor_accel *a, const a
     f->user = user;
     atomic_init(&f->started, false);
     frame_setup(f);
-    size_t pixels = (size_t)p->camera.width * (size_t)p->camera.height;
+    size_t pixels = (size_t)f->region.w * (size_t)f->region.h;
     f->rgb = calloc(pixels, 3);
     f->tiles = calloc((size_t)(f->tiles_x * f->tiles_y), sizeof *f->tiles);
     f->heat = p->mode == ARBOR_MODE_HEAT ? calloc(pixels, sizeof *f->heat) : NULL;
