@@ -14,6 +14,10 @@
  * The text parsers read the whole buffer in one pass and are safe on
  * arbitrary bytes: they never read outside [text, text + len) and need no
  * terminating NUL.
+ *
+ * Work per file is bounded: a load reads at most max_bytes of file or, for
+ * gzip, of decompressed data (a small .gz can inflate to gigabytes), and
+ * fails naming the file and the limit beyond it.
  */
 #ifndef ARBOR_LOAD_H
 #define ARBOR_LOAD_H
@@ -24,9 +28,23 @@
 #include "arbor/err.h"
 #include "arbor/mesh.h"
 
-/* Loads path by its extension: .obj, .obj.gz, .ply, .ply.gz. Material
- * libraries resolve against the model's folder and may not leave it. */
+/* The cap arbor_load_model applies: 4 GiB of file or of decompressed data. */
+#define ARBOR_LOAD_MAX_BYTES ((size_t)4 << 30)
+
+/* Loads path by its extension: .obj, .obj.gz, .ply, .ply.gz, reading at
+ * most ARBOR_LOAD_MAX_BYTES. Material libraries resolve against the model's
+ * folder and may not leave it, following symbolic links (real paths). */
 bool arbor_load_model(const char *path, arbor_mesh *m, arbor_err *e);
+
+/* The same with the caller's cap on the bytes read (0: ARBOR_LOAD_MAX_BYTES);
+ * a file or decompressed stream longer than max_bytes is an ARBOR_ERR_IO
+ * error naming the file and the limit. */
+bool arbor_load_model_capped(const char *path, size_t max_bytes, arbor_mesh *m, arbor_err *e);
+
+/* The bytes a load parses: the whole file at path, gunzipped when its name
+ * ends in .gz, at most max_bytes of them (0: ARBOR_LOAD_MAX_BYTES). *data is
+ * malloc'd and the caller's to free; *len is its length. */
+bool arbor_load_file(const char *path, size_t max_bytes, char **data, size_t *len, arbor_err *e);
 
 /* Parses OBJ text already in memory. `name` is used in error messages; mtllib
  * paths resolve against dir (NULL: materials are not loaded). */

@@ -1,8 +1,8 @@
 /*
  * load.c - loading a model file by its extension (arbor_load_model, see
- * include/arbor/load.h): reads the whole file, gunzipping .gz, and hands the
- * buffer to the OBJ or PLY parser, with the file's folder for material
- * libraries.
+ * include/arbor/load.h): reads the whole file, gunzipping .gz, up to the
+ * caller's cap, and hands the buffer to the OBJ or PLY parser, with the
+ * file's folder for material libraries.
  */
 #include <stdlib.h>
 #include <string.h>
@@ -19,12 +19,12 @@ static bool has_suffix(const char *s, const char *suffix)
     return n >= k && strcasecmp(s + n - k, suffix) == 0;
 }
 
-static model_format format_of(const char *path, bool *gz)
+static model_format format_of(const char *path)
 {
-    *gz = has_suffix(path, ".gz");
-    if (has_suffix(path, *gz ? ".obj.gz" : ".obj"))
+    bool gz = has_suffix(path, ".gz");
+    if (has_suffix(path, gz ? ".obj.gz" : ".obj"))
         return FORMAT_OBJ;
-    if (has_suffix(path, *gz ? ".ply.gz" : ".ply"))
+    if (has_suffix(path, gz ? ".ply.gz" : ".ply"))
         return FORMAT_PLY;
     return FORMAT_UNKNOWN;
 }
@@ -44,16 +44,26 @@ static char *folder_of(const char *path)
     return dir;
 }
 
+bool arbor_load_file(const char *path, size_t max_bytes, char **data, size_t *len, arbor_err *e)
+{
+    return loader_read_file(path, has_suffix(path, ".gz"), max_bytes ? max_bytes : ARBOR_LOAD_MAX_BYTES, data, len,
+                            e);
+}
+
 bool arbor_load_model(const char *path, arbor_mesh *m, arbor_err *e)
 {
+    return arbor_load_model_capped(path, 0, m, e);
+}
+
+bool arbor_load_model_capped(const char *path, size_t max_bytes, arbor_mesh *m, arbor_err *e)
+{
     arbor_mesh_init(m);
-    bool gz;
-    model_format format = format_of(path, &gz);
+    model_format format = format_of(path);
     if (format == FORMAT_UNKNOWN)
         return arbor_fail(e, ARBOR_ERR_IO, "%s: unknown model format (expected .obj, .obj.gz, .ply or .ply.gz)", path);
     char *data;
     size_t len;
-    if (!loader_read_file(path, gz, &data, &len, e))
+    if (!arbor_load_file(path, max_bytes, &data, &len, e))
         return false;
     bool ok;
     if (format == FORMAT_PLY) {

@@ -20,8 +20,9 @@
 
 /* Reads the whole file at path into a malloc'd buffer (*data, *len),
  * decompressing it with zlib when gz is true. A missing or unreadable file,
- * or gzip data that is truncated or corrupt, is an ARBOR_ERR_IO error. */
-bool loader_read_file(const char *path, bool gz, char **data, size_t *len, arbor_err *e);
+ * gzip data that is truncated or corrupt, or more than max_bytes of file or
+ * of decompressed data, is an ARBOR_ERR_IO error. */
+bool loader_read_file(const char *path, bool gz, size_t max_bytes, char **data, size_t *len, arbor_err *e);
 
 /* Checks that the mesh has triangles and finishes it (arbor_mesh_finish). On
  * failure, or when ok is false (the parser already failed), frees the mesh,

@@ -189,7 +189,7 @@ bool mtl_load(material_table *t, const char *path, arbor_err *e)
 {
     char *data;
     size_t len;
-    if (!loader_read_file(path, false, &data, &len, e))
+    if (!loader_read_file(path, false, ARBOR_LOAD_MAX_BYTES, &data, &len, e))
         return false;
     mtl_reader r = {.table = t, .current = -1};
     text_cursor_init(&r.c, data, len, path);

@@ -60,10 +60,12 @@ static bool read_plain(const char *path, size_t size, char **data, size_t *len, 
     return true;
 }
 
-/* Decompresses in growing chunks. zlib reports a stream cut short only
- * through gzerror / gzclose (gzread just returns what it had), so both are
- * checked: a truncated file must fail, not load partially. */
-static bool read_gz(const char *path, char **data, size_t *len, arbor_err *e)
+/* Decompresses in growing chunks, at most max_bytes: reading one byte more
+ * than that tells a stream that is too long from one that fits exactly.
+ * zlib reports a stream cut short only through gzerror / gzclose (gzread
+ * just returns what it had), so both are checked: a truncated file must
+ * fail, not load partially. */
+static bool read_gz(const char *path, size_t max_bytes, char **data, size_t *len, arbor_err *e)
 {
     gzFile f = gzopen(path, "rb");
     if (f == NULL)
@@ -72,7 +74,7 @@ static bool read_gz(const char *path, char **data, size_t *len, arbor_err *e)
     size_t cap = 1u << 20, n = 0;
     char *buf = malloc(cap);
     bool ok = buf != NULL;
-    while (ok) {
+    while (ok && n <= max_bytes) {
         if (n == cap) {
             char *bigger = cap <= SIZE_MAX / 2 ? realloc(buf, cap * 2) : NULL;
             if (bigger == NULL) {
@@ -83,6 +85,8 @@ static bool read_gz(const char *path, char **data, size_t *len, arbor_err *e)
             cap *= 2;
         }
         size_t want = cap - n < (1u << 30) ? cap - n : (1u << 30);
+        if (want - 1 > max_bytes - n) /* want > max_bytes - n + 1, without overflow */
+            want = max_bytes - n + 1;
         int got = gzread(f, buf + n, (unsigned)want);
         if (got <= 0)
             break;
@@ -93,6 +97,10 @@ static bool read_gz(const char *path, char **data, size_t *len, arbor_err *e)
     char reason[160];
     snprintf(reason, sizeof reason, "%s", zmsg ? zmsg : "");
     int close_rc = gzclose(f);
+    if (ok && n > max_bytes) {
+        free(buf);
+        return arbor_fail(e, ARBOR_ERR_IO, "%s: decompresses to more than the limit of %zu bytes", path, max_bytes);
+    }
     if (!ok) {
         free(buf);
         return arbor_fail(e, ARBOR_ERR_NOMEM, "%s: out of memory decompressing (%zu bytes so far)", path, n);
@@ -107,12 +115,17 @@ static bool read_gz(const char *path, char **data, size_t *len, arbor_err *e)
     return true;
 }
 
-bool loader_read_file(const char *path, bool gz, char **data, size_t *len, arbor_err *e)
+bool loader_read_file(const char *path, bool gz, size_t max_bytes, char **data, size_t *len, arbor_err *e)
 {
     struct stat st;
     if (!check_regular(path, &st, e))
         return false;
-    return gz ? read_gz(path, data, len, e) : read_plain(path, (size_t)st.st_size, data, len, e);
+    if (gz)
+        return read_gz(path, max_bytes, data, len, e);
+    if ((uint64_t)st.st_size > max_bytes)
+        return arbor_fail(e, ARBOR_ERR_IO, "%s: %lld bytes, more than the limit of %zu bytes", path,
+                          (long long)st.st_size, max_bytes);
+    return read_plain(path, (size_t)st.st_size, data, len, e);
 }
 
 bool loader_finish(bool ok, arbor_mesh *m, const char *name, arbor_err *e)

@@ -455,6 +455,50 @@ static void test_truncated_gz_is_an_error(void)
     free(text);
 }
 
+/* 64 MiB of zeros deflate to about 64 KiB: a small file that must not be
+ * inflated past the caller's cap (nor the whole way: reading stops at it). */
+static void test_gz_is_capped_by_its_decompressed_size(void)
+{
+    const size_t zeros = (size_t)64 << 20, cap = (size_t)1 << 20;
+    char path[256];
+    tmp_path(path, sizeof path, "zeros.obj.gz");
+    gzFile f = gzopen(path, "wb9");
+    TEST_ASSERT_NOT_NULL(f);
+    char *block = calloc(1, (size_t)1 << 20);
+    for (size_t done = 0; done < zeros; done += (size_t)1 << 20)
+        TEST_ASSERT_EQUAL_INT(1 << 20, gzwrite(f, block, 1u << 20));
+    TEST_ASSERT_EQUAL_INT(Z_OK, gzclose(f));
+    free(block);
+    struct stat st;
+    TEST_ASSERT_EQUAL_INT(0, stat(path, &st));
+    TEST_ASSERT_TRUE(st.st_size < (off_t)cap);
+
+    arbor_mesh m;
+    arbor_err e;
+    char limit[64];
+    snprintf(limit, sizeof limit, "limit of %zu bytes", cap);
+    TEST_ASSERT_FALSE(arbor_load_model_capped(path, cap, &m, &e));
+    assert_error(&e, ARBOR_ERR_IO, limit);
+    assert_error(&e, ARBOR_ERR_IO, "zeros.obj.gz");
+    assert_mesh_empty(&m);
+    char *data;
+    size_t len;
+    TEST_ASSERT_FALSE(arbor_load_file(path, cap, &data, &len, &e));
+    assert_error(&e, ARBOR_ERR_IO, limit);
+
+    /* exactly at the cap is fine; a plain file is capped by its size */
+    const char *text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+    const char *gz = write_gz("small.obj.gz", text, strlen(text));
+    TEST_ASSERT_TRUE_MESSAGE(arbor_load_model_capped(gz, strlen(text), &m, &e), e.msg);
+    arbor_mesh_free(&m);
+    TEST_ASSERT_FALSE(arbor_load_model_capped(gz, strlen(text) - 1, &m, &e));
+    const char *plain = write_text("small.obj", text);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_load_model_capped(plain, strlen(text), &m, &e), e.msg);
+    arbor_mesh_free(&m);
+    TEST_ASSERT_FALSE(arbor_load_model_capped(plain, strlen(text) - 1, &m, &e));
+    assert_error(&e, ARBOR_ERR_IO, "small.obj: 32 bytes, more than the limit of 31 bytes");
+}
+
 /* ---- errors ---- */
 
 static void test_errors_name_file_line_and_reason(void)
@@ -1053,6 +1097,7 @@ int main(void)
     RUN_TEST(test_malformed_mtl_fails_with_its_line);
     RUN_TEST(test_obj_gz_loads_like_the_plain_file);
     RUN_TEST(test_truncated_gz_is_an_error);
+    RUN_TEST(test_gz_is_capped_by_its_decompressed_size);
     RUN_TEST(test_errors_name_file_line_and_reason);
     RUN_TEST(test_file_errors);
     RUN_TEST(test_megabyte_lines);
