@@ -99,7 +99,7 @@ bench: $(BUILD)/arbord
 # The objects that test ARBOR_HAVE_EMBREE are rebuilt, in case arbord was built before Embree was installed.
 bench-embree:
 	@scripts/deps.sh --embree
-	rm -f $(BUILD)/obj/src/cli/embree_peer.o $(BUILD)/obj/src/cli/cmd_bench.o $(BUILD)/arbord
+	rm -f $(BUILD)/obj/src/bench/embree_peer.o $(BUILD)/arbord
 	$(MAKE) EMBREE=1 $(BUILD)/arbord
 	SHARED=$(SHARED) scripts/bench.sh --embree
 

@@ -9,6 +9,7 @@
 
 #include "arbor/accel.h"
 #include "arbor/load.h"
+#include "arbor/report.h"
 #include "cli.h"
 
 static void usage(FILE *out)
@@ -18,29 +19,17 @@ static void usage(FILE *out)
             "  builders: spatial, median, mean, sah (default: all); accel default: bvh\n");
 }
 
-static void print_json(const char *model, const arbor_mesh *m, arbor_accel_kind kind, arbor_builder b,
+/* One JSON object on one line, in report.h's encoding; false when out of memory. */
+static bool print_json(const char *model, const arbor_mesh *m, arbor_accel_kind kind, arbor_builder b,
                        const arbor_tree_stats *s)
 {
-    cJSON *o = cJSON_CreateObject();
-    cJSON_AddStringToObject(o, "model", model);
-    cJSON_AddNumberToObject(o, "triangles", m->ntris);
-    cJSON_AddStringToObject(o, "accel", arbor_accel_kind_name(kind));
-    cJSON_AddStringToObject(o, "builder", arbor_builder_name(b));
-    cJSON_AddNumberToObject(o, "build_ms", s->build_ms);
-    cJSON_AddNumberToObject(o, "nodes", (double)s->nodes);
-    cJSON_AddNumberToObject(o, "leaves", (double)s->leaves);
-    cJSON_AddNumberToObject(o, "empty_leaves", (double)s->empty_leaves);
-    cJSON_AddNumberToObject(o, "max_depth", s->max_depth);
-    cJSON_AddNumberToObject(o, "mean_leaf_depth", s->mean_leaf_depth);
-    cJSON_AddNumberToObject(o, "mean_tris_per_leaf", s->mean_tris_per_leaf);
-    cJSON_AddNumberToObject(o, "refs", (double)s->refs);
-    cJSON_AddNumberToObject(o, "bytes", (double)s->bytes);
-    cJSON_AddNumberToObject(o, "sah_cost", s->sah_cost);
-    char *text = cJSON_PrintUnformatted(o);
+    cJSON *o = arbor_report_tree_stats(model, m->ntris, kind, b, s);
+    char *text = o != NULL ? cJSON_PrintUnformatted(o) : NULL;
     if (text != NULL)
         puts(text);
     free(text);
     cJSON_Delete(o);
+    return text != NULL;
 }
 
 static void print_header(void)
@@ -132,11 +121,15 @@ int cmd_stats(int argc, char **argv)
             }
             arbor_tree_stats s;
             arbor_accel_stats(tree, &s);
-            if (json)
-                print_json(model, &mesh, (arbor_accel_kind)k, (arbor_builder)b, &s);
-            else
+            if (!json)
                 print_row((arbor_accel_kind)k, (arbor_builder)b, &s);
+            else if (!print_json(model, &mesh, (arbor_accel_kind)k, (arbor_builder)b, &s))
+                status = 1;
             arbor_accel_free(tree);
+            if (status != 0) {
+                fprintf(stderr, "arbord stats: out of memory\n");
+                break;
+            }
         }
     }
     arbor_mesh_free(&mesh);

@@ -1,8 +1,8 @@
 /*
- * embree_peer.c - Intel Embree 3 as the benchmark peer (see embree_peer.h).
+ * embree_peer.c - Intel Embree 3 as the benchmark peer (see include/arbor/embree_peer.h).
  * Without ARBOR_HAVE_EMBREE only the stubs at the end are compiled.
  */
-#include "embree_peer.h"
+#include "arbor/embree_peer.h"
 
 #ifdef ARBOR_HAVE_EMBREE
 
@@ -13,7 +13,7 @@
 
 #include "arbor/sys.h"
 
-struct embree_peer {
+struct arbor_embree_peer {
     RTCDevice device;
     RTCScene scene;
     arbor_err *err; /* where the device's error callback reports, during build only */
@@ -21,19 +21,19 @@ struct embree_peer {
 
 static void on_device_error(void *user, enum RTCError code, const char *msg)
 {
-    embree_peer *p = user;
+    arbor_embree_peer *p = user;
     if (p->err != NULL && p->err->status == ARBOR_OK)
         arbor_fail(p->err, ARBOR_ERR_INVALID, "embree error %d: %s", (int)code, msg ? msg : "");
 }
 
-bool embree_peer_available(void)
+bool arbor_embree_available(void)
 {
     return true;
 }
 
 /* The mesh's vertices and triangles, copied into buffers Embree allocates
  * (they are padded as Embree requires, which the mesh's arrays are not). */
-static bool add_mesh(embree_peer *p, const arbor_mesh *m, arbor_err *e)
+static bool add_mesh(arbor_embree_peer *p, const arbor_mesh *m, arbor_err *e)
 {
     RTCGeometry g = rtcNewGeometry(p->device, RTC_GEOMETRY_TYPE_TRIANGLE);
     float *verts = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
@@ -56,9 +56,9 @@ static bool add_mesh(embree_peer *p, const arbor_mesh *m, arbor_err *e)
     return true;
 }
 
-embree_peer *embree_peer_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e)
+arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e)
 {
-    embree_peer *p = calloc(1, sizeof *p);
+    arbor_embree_peer *p = calloc(1, sizeof *p);
     if (p == NULL) {
         arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for the embree peer");
         return NULL;
@@ -88,15 +88,15 @@ embree_peer *embree_peer_build(const arbor_mesh *m, int threads, double *commit_
             arbor_fail(&local, ARBOR_ERR_INVALID, "embree: cannot create the scene");
         if (e != NULL)
             *e = local;
-        embree_peer_free(p);
+        arbor_embree_free(p);
         return NULL;
     }
     return p;
 }
 
-void embree_peer_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)
+void arbor_embree_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)
 {
-    const embree_peer *p = peer;
+    const arbor_embree_peer *p = peer;
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     uint64_t hits = 0;
@@ -134,7 +134,7 @@ void embree_peer_kernel(const void *peer, const arbor_ray *rays, size_t n, bool 
     t->tsum += tsum;
 }
 
-void embree_peer_free(embree_peer *p)
+void arbor_embree_free(arbor_embree_peer *p)
 {
     if (p == NULL)
         return;
@@ -146,12 +146,12 @@ void embree_peer_free(embree_peer *p)
 
 #else /* !ARBOR_HAVE_EMBREE */
 
-bool embree_peer_available(void)
+bool arbor_embree_available(void)
 {
     return false;
 }
 
-embree_peer *embree_peer_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e)
+arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e)
 {
     (void)m;
     (void)threads;
@@ -160,7 +160,7 @@ embree_peer *embree_peer_build(const arbor_mesh *m, int threads, double *commit_
     return NULL;
 }
 
-void embree_peer_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)
+void arbor_embree_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)
 {
     (void)peer;
     (void)rays;
@@ -169,7 +169,7 @@ void embree_peer_kernel(const void *peer, const arbor_ray *rays, size_t n, bool 
     (void)t;
 }
 
-void embree_peer_free(embree_peer *p)
+void arbor_embree_free(arbor_embree_peer *p)
 {
     (void)p;
 }

@@ -3,13 +3,13 @@
  * arbor mesh and a trace kernel for arbor_time_set, so Embree is timed by the
  * same loop, on the same rays and thread partition, as arbor's trees.
  *
- * Compiled in only with ARBOR_HAVE_EMBREE; without it embree_peer_build
+ * Compiled in only with ARBOR_HAVE_EMBREE; without it arbor_embree_build
  * fails with "built without Embree; run `make bench-embree`" and the rest of
  * arbord works unchanged. The peer owns its device and scene; free it with
- * embree_peer_free. It copies the mesh's arrays, so the mesh may go first.
+ * arbor_embree_free. It copies the mesh's arrays, so the mesh may go first.
  */
-#ifndef ARBOR_CLI_EMBREE_PEER_H
-#define ARBOR_CLI_EMBREE_PEER_H
+#ifndef ARBOR_EMBREE_PEER_H
+#define ARBOR_EMBREE_PEER_H
 
 #include <stdbool.h>
 
@@ -17,19 +17,19 @@
 #include "arbor/mesh.h"
 #include "arbor/raysets.h"
 
-typedef struct embree_peer embree_peer;
+typedef struct arbor_embree_peer arbor_embree_peer;
 
 /* True when this binary was built with Embree. */
-bool embree_peer_available(void);
+bool arbor_embree_available(void);
 
 /* A device limited to `threads` build threads (0 = Embree's default) and a
  * triangle scene at the default build quality; *commit_ms gets the
  * rtcCommitScene time. NULL with e filled on failure. */
-embree_peer *embree_peer_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e);
+arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e);
 
 /* The arbor_trace_kernel for a peer: rtcIntersect1 / rtcOccluded1 per ray. */
-void embree_peer_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t);
+void arbor_embree_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t);
 
-void embree_peer_free(embree_peer *p);
+void arbor_embree_free(arbor_embree_peer *p);
 
 #endif

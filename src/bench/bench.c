@@ -1,0 +1,398 @@
+/*
+ * bench.c - the benchmark (see include/arbor/bench.h): the study's measures
+ * and PROTOCOL.md's ray sets for each tree over a mesh, Embree beside them,
+ * and OBJ parse speed.
+ *
+ * Every figure is the median of o->runs repetitions through one helper,
+ * median_of_runs, which is also where the cancel flag is checked: between
+ * measurements, never inside one, so every figure reported was measured
+ * whole.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/bench.h"
+#include "arbor/embree_peer.h"
+#include "arbor/load.h"
+#include "arbor/raysets.h"
+#include "arbor/render.h"
+#include "arbor/sys.h"
+
+#define SET_MIN_MS 200.0
+#define AGREE_REL 1e-3
+#define DIFFUSE_SEED 20240601u
+
+static const char *const set_names[ARBOR_SET_COUNT] = {"primary", "diffuse", "shadow"};
+
+const char *arbor_ray_set_name(arbor_ray_set set)
+{
+    return (unsigned)set < ARBOR_SET_COUNT ? set_names[set] : "?";
+}
+
+void arbor_bench_opts_init(arbor_bench_opts *o)
+{
+    memset(o, 0, sizeof *o);
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
+        o->kinds[k] = true;
+    for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
+        o->builders[b] = true;
+    o->runs = 5;
+}
+
+static size_t count_chosen(const bool *chosen, int n)
+{
+    size_t count = 0;
+    for (int i = 0; i < n; i++)
+        count += chosen[i];
+    return count;
+}
+
+size_t arbor_bench_row_count(const arbor_bench_opts *o)
+{
+    return count_chosen(o->kinds, ARBOR_ACCEL_KIND_COUNT) * count_chosen(o->builders, ARBOR_BUILDER_COUNT) +
+           (o->embree ? 1 : 0);
+}
+
+bool arbor_bench_same_hits(const arbor_bench_row *a, const arbor_bench_row *b)
+{
+    double ha = (double)a->primary_hits, hb = (double)b->primary_hits;
+    return fabs(ha - hb) <= AGREE_REL * fmax(ha, hb) &&
+           fabs(a->primary_tsum - b->primary_tsum) <= AGREE_REL * fmax(fabs(a->primary_tsum), fabs(b->primary_tsum));
+}
+
+/* ---- the one timing helper ---- */
+
+typedef bool (*measure_fn)(void *ctx, double *value, arbor_err *e);
+
+static int compare_doubles(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static bool cancelled(const atomic_bool *cancel, arbor_err *e)
+{
+    if (cancel != NULL && atomic_load(cancel))
+        return !arbor_fail(e, ARBOR_ERR_CANCELLED, "benchmark cancelled");
+    return false;
+}
+
+/* Calls measure `runs` times (checking the cancel flag before each);
+ * *median gets the median of the values. */
+static bool median_of_runs(int runs, const atomic_bool *cancel, measure_fn measure, void *ctx, double *median,
+                           arbor_err *e)
+{
+    double values[ARBOR_BENCH_MAX_RUNS];
+    for (int i = 0; i < runs; i++)
+        if (cancelled(cancel, e) || !measure(ctx, &values[i], e))
+            return false;
+    qsort(values, (size_t)runs, sizeof values[0], compare_doubles);
+    *median = runs % 2 ? values[runs / 2] : 0.5 * (values[runs / 2 - 1] + values[runs / 2]);
+    return true;
+}
+
+/* ---- measures ---- */
+
+typedef struct {
+    const arbor_mesh *mesh;
+    arbor_build_opts opts;
+    arbor_accel *tree; /* the last one built */
+} build_measure;
+
+static bool measure_build(void *ctx, double *value, arbor_err *e)
+{
+    build_measure *b = ctx;
+    arbor_accel_free(b->tree);
+    b->tree = arbor_accel_build(b->mesh, &b->opts, e);
+    if (b->tree == NULL)
+        return false;
+    arbor_tree_stats s;
+    arbor_accel_stats(b->tree, &s);
+    *value = s.build_ms;
+    return true;
+}
+
+typedef struct {
+    arbor_pool *pool;
+    const arbor_accel *tree;
+    arbor_render_params params;
+} render_measure;
+
+static bool measure_render(void *ctx, double *value, arbor_err *e)
+{
+    render_measure *r = ctx;
+    arbor_frame *f = arbor_render(r->pool, r->tree, &r->params, e);
+    if (f == NULL)
+        return false;
+    *value = arbor_frame_result_of(f)->render_ms;
+    arbor_frame_release(f);
+    return true;
+}
+
+typedef struct {
+    arbor_trace_kernel kernel;
+    const void *tracer;
+    const arbor_ray *rays;
+    size_t n;
+    bool any_hit;
+    int threads;
+    arbor_tally tally; /* of the last run's pass */
+} set_measure;
+
+/* Timed without the pool (NULL): on exactly `threads` threads of its own
+ * over a fixed partition, the same for every tracer, so figures at N
+ * threads mean N threads whatever else the pool is doing. */
+static bool measure_set(void *ctx, double *value, arbor_err *e)
+{
+    set_measure *s = ctx;
+    arbor_set_timing t;
+    if (!arbor_time_set(NULL, s->kernel, s->tracer, s->rays, s->n, s->any_hit, s->threads, SET_MIN_MS, &t, e))
+        return false;
+    s->tally = t.tally;
+    *value = t.mrays_per_s;
+    return true;
+}
+
+typedef struct {
+    const arbor_mesh *mesh;
+    int threads;
+    arbor_embree_peer *peer; /* the last one built */
+} embree_measure;
+
+static bool measure_embree_build(void *ctx, double *value, arbor_err *e)
+{
+    embree_measure *m = ctx;
+    arbor_embree_free(m->peer);
+    m->peer = arbor_embree_build(m->mesh, m->threads, value, e);
+    return m->peer != NULL;
+}
+
+/* ---- one mesh ---- */
+
+/* What every row of one arbor_bench_mesh call shares. */
+typedef struct {
+    const arbor_bench_opts *o;
+    const char *model;
+    const arbor_mesh *mesh;
+    int threads;         /* resolved: never 0 */
+    arbor_pool *pool;
+    arbor_raysets sets;
+    arbor_bench_row *rows;
+    size_t done, total;
+} bench_run;
+
+/* Times the three sets with one tracer, filling the row's Mrays/s, hits, tsum. */
+static bool time_sets(const bench_run *b, arbor_trace_kernel kernel, const void *tracer, arbor_bench_row *row,
+                      arbor_err *e)
+{
+    const arbor_ray *rays[ARBOR_SET_COUNT] = {b->sets.primary, b->sets.diffuse, b->sets.shadow};
+    size_t n[ARBOR_SET_COUNT] = {b->sets.nprimary, b->sets.ndiffuse, b->sets.nshadow};
+    for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+        set_measure m = {kernel, tracer, rays[s], n[s], s == ARBOR_SET_SHADOW, b->threads, {0, 0.0}};
+        if (n[s] == 0) {
+            row->mrays[s] = 0.0;
+            continue;
+        }
+        if (!median_of_runs(b->o->runs, b->o->cancel, measure_set, &m, &row->mrays[s], e))
+            return false;
+        if (s == ARBOR_SET_PRIMARY) {
+            row->primary_hits = m.tally.hits;
+            row->primary_tsum = m.tally.tsum;
+        }
+    }
+    return true;
+}
+
+static void row_init(const bench_run *b, arbor_bench_row *row, const char *accel, const char *builder)
+{
+    memset(row, 0, sizeof *row);
+    snprintf(row->model, sizeof row->model, "%s", b->model);
+    row->triangles = b->mesh->ntris;
+    row->accel = accel;
+    row->builder = builder;
+    row->threads = b->threads;
+    row->mean_leaf_depth = row->mean_tris_per_leaf = row->sah_cost = row->render_ms = NAN;
+    for (int s = 0; s < ARBOR_SET_COUNT; s++)
+        row->ratio[s] = NAN;
+}
+
+static void row_finished(bench_run *b)
+{
+    b->done++;
+    if (b->o->row_done != NULL)
+        b->o->row_done(b->o->user, &b->rows[b->done - 1], b->done, b->total);
+}
+
+/* One tree kind and builder: build, statistics, render, ray sets. */
+static bool bench_tree(bench_run *b, arbor_accel_kind kind, arbor_builder builder, arbor_err *e)
+{
+    arbor_bench_row *row = &b->rows[b->done];
+    row_init(b, row, arbor_accel_kind_name(kind), arbor_builder_name(builder));
+    build_measure bm;
+    bm.mesh = b->mesh;
+    bm.tree = NULL;
+    arbor_build_opts_init(&bm.opts, kind, builder);
+    bm.opts.threads = b->threads;
+    bool ok = median_of_runs(b->o->runs, b->o->cancel, measure_build, &bm, &row->build_ms, e);
+    if (ok) {
+        arbor_tree_stats s;
+        arbor_accel_stats(bm.tree, &s);
+        row->mean_leaf_depth = s.mean_leaf_depth;
+        row->mean_tris_per_leaf = s.mean_tris_per_leaf;
+        row->sah_cost = s.sah_cost;
+        render_measure r;
+        r.pool = b->pool;
+        r.tree = bm.tree;
+        arbor_render_params_init(&r.params, b->mesh, ARBOR_PROTOCOL_WIDTH, ARBOR_PROTOCOL_HEIGHT);
+        ok = median_of_runs(b->o->runs, b->o->cancel, measure_render, &r, &row->render_ms, e);
+    }
+    ok = ok && time_sets(b, arbor_accel_kernel, bm.tree, row, e);
+    arbor_accel_free(bm.tree);
+    if (ok)
+        row_finished(b);
+    return ok;
+}
+
+static bool bench_embree(bench_run *b, arbor_err *e)
+{
+    arbor_bench_row *row = &b->rows[b->done];
+    row_init(b, row, "embree", "default");
+    embree_measure m = {b->mesh, b->threads, NULL};
+    bool ok = median_of_runs(b->o->runs, b->o->cancel, measure_embree_build, &m, &row->build_ms, e) &&
+              time_sets(b, arbor_embree_kernel, m.peer, row, e);
+    arbor_embree_free(m.peer);
+    if (ok)
+        row_finished(b);
+    return ok;
+}
+
+/* The ray sets: primary, then diffuse and shadow from the hits of the
+ * first requested tree. */
+static bool make_sets(bench_run *b, arbor_err *e)
+{
+    int kind = 0, builder = 0;
+    while (!b->o->kinds[kind])
+        kind++;
+    while (!b->o->builders[builder])
+        builder++;
+    if (!arbor_raysets_primary(b->mesh, &b->sets, e))
+        return false;
+    arbor_build_opts opts;
+    arbor_build_opts_init(&opts, (arbor_accel_kind)kind, (arbor_builder)builder);
+    opts.threads = b->threads;
+    arbor_accel *ref = arbor_accel_build(b->mesh, &opts, e);
+    arbor_hit *hits = malloc(b->sets.nprimary * sizeof *hits);
+    bool *found = malloc(b->sets.nprimary * sizeof *found);
+    bool ok = ref != NULL && hits != NULL && found != NULL;
+    if (ref != NULL && !ok)
+        arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for the reference trace");
+    ok = ok && arbor_accel_trace_hits(b->pool, ref, b->sets.primary, b->sets.nprimary, b->threads, hits, found, e) &&
+         arbor_raysets_secondary(b->mesh, &b->sets, hits, found, DIFFUSE_SEED, e);
+    free(hits);
+    free(found);
+    arbor_accel_free(ref);
+    return ok;
+}
+
+/* Every arbor row's Mrays/s over Embree's (the last row). */
+static void fill_ratios(bench_run *b)
+{
+    const arbor_bench_row *peer = &b->rows[b->total - 1];
+    for (size_t i = 0; i + 1 < b->total; i++)
+        for (int s = 0; s < ARBOR_SET_COUNT; s++)
+            b->rows[i].ratio[s] = peer->mrays[s] > 0.0 ? b->rows[i].mrays[s] / peer->mrays[s] : NAN;
+}
+
+static bool check_opts(const arbor_bench_opts *o, arbor_err *e)
+{
+    if (o->runs < 1 || o->runs > ARBOR_BENCH_MAX_RUNS)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "runs must be in 1..%d, not %d", ARBOR_BENCH_MAX_RUNS, o->runs);
+    if (o->threads < 0)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "threads must be 0 (one per core) or more, not %d", o->threads);
+    if (count_chosen(o->kinds, ARBOR_ACCEL_KIND_COUNT) == 0 || count_chosen(o->builders, ARBOR_BUILDER_COUNT) == 0)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "at least one tree kind and one builder to measure");
+    if (o->embree && !arbor_embree_available())
+        return arbor_fail(e, ARBOR_ERR_INVALID, "built without Embree; run `make bench-embree`");
+    return true;
+}
+
+static bool bench_all(bench_run *b, arbor_err *e)
+{
+    const arbor_bench_opts *o = b->o;
+    if (cancelled(o->cancel, e) || !make_sets(b, e))
+        return false;
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
+        for (int bl = 0; bl < ARBOR_BUILDER_COUNT; bl++)
+            if (o->kinds[k] && o->builders[bl] && !bench_tree(b, (arbor_accel_kind)k, (arbor_builder)bl, e))
+                return false;
+    if (o->embree) {
+        if (!bench_embree(b, e))
+            return false;
+        fill_ratios(b);
+    }
+    return true;
+}
+
+bool arbor_bench_mesh(const char *model_name, const arbor_mesh *m, const arbor_bench_opts *o,
+                      arbor_bench_row *rows, arbor_err *e)
+{
+    if (!check_opts(o, e))
+        return false;
+    bench_run b;
+    memset(&b, 0, sizeof b);
+    b.o = o;
+    b.model = model_name;
+    b.mesh = m;
+    b.threads = o->threads > 0 ? o->threads : arbor_cpu_count();
+    b.rows = rows;
+    b.total = arbor_bench_row_count(o);
+    b.pool = o->pool != NULL ? o->pool : arbor_pool_create(b.threads, e);
+    if (b.pool == NULL)
+        return false;
+    bool ok = bench_all(&b, e);
+    arbor_raysets_free(&b.sets);
+    if (o->pool == NULL)
+        arbor_pool_destroy(b.pool);
+    return ok;
+}
+
+/* ---- OBJ parse speed ---- */
+
+typedef struct {
+    const char *text, *name;
+    size_t len;
+    uint32_t triangles;
+} parse_measure;
+
+static bool measure_parse(void *ctx, double *value, arbor_err *e)
+{
+    parse_measure *p = ctx;
+    arbor_mesh m;
+    double t0 = arbor_now_ms();
+    bool ok = arbor_load_obj_text(p->text, p->len, p->name, NULL, &m, e);
+    *value = arbor_now_ms() - t0;
+    p->triangles = m.ntris;
+    arbor_mesh_free(&m);
+    return ok;
+}
+
+bool arbor_bench_parse(const char *path, int runs, const atomic_bool *cancel, arbor_parse_timing *out,
+                       arbor_err *e)
+{
+    if (runs < 1 || runs > ARBOR_BENCH_MAX_RUNS)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "runs must be in 1..%d, not %d", ARBOR_BENCH_MAX_RUNS, runs);
+    char *text;
+    parse_measure p = {NULL, path, 0, 0};
+    if (!arbor_load_file(path, 0, &text, &p.len, e))
+        return false;
+    p.text = text;
+    memset(out, 0, sizeof *out);
+    bool ok = median_of_runs(runs, cancel, measure_parse, &p, &out->parse_ms, e);
+    free(text);
+    out->bytes = p.len;
+    out->triangles = p.triangles;
+    out->mb_per_s = out->parse_ms > 0.0 ? (double)p.len / 1e6 / (out->parse_ms / 1e3) : 0.0;
+    return ok;
+}

@@ -1,0 +1,107 @@
+/*
+ * report.c - measurements as JSON objects (see include/arbor/report.h).
+ *
+ * Each object is built through a small writer that remembers whether any
+ * addition failed, so an object is either complete or NULL, never missing
+ * a key silently.
+ */
+#include <math.h>
+#include <stdio.h>
+
+#include "arbor/report.h"
+
+typedef struct {
+    cJSON *o;
+    bool ok;
+} json_writer;
+
+static json_writer writer_new(void)
+{
+    json_writer w = {cJSON_CreateObject(), true};
+    w.ok = w.o != NULL;
+    return w;
+}
+
+static void put_string(json_writer *w, const char *key, const char *v)
+{
+    w->ok = w->ok && cJSON_AddStringToObject(w->o, key, v) != NULL;
+}
+
+/* NAN (not applicable) becomes null. */
+static void put_number(json_writer *w, const char *key, double v)
+{
+    if (!w->ok)
+        return;
+    w->ok = (isnan(v) ? cJSON_AddNullToObject(w->o, key) : cJSON_AddNumberToObject(w->o, key, v)) != NULL;
+}
+
+/* The object, or NULL (and nothing leaked) when an addition failed. */
+static cJSON *writer_end(json_writer *w)
+{
+    if (w->ok)
+        return w->o;
+    cJSON_Delete(w->o);
+    return NULL;
+}
+
+cJSON *arbor_report_tree_stats(const char *model, uint32_t triangles, arbor_accel_kind kind, arbor_builder builder,
+                               const arbor_tree_stats *s)
+{
+    json_writer w = writer_new();
+    put_string(&w, "model", model);
+    put_number(&w, "triangles", triangles);
+    put_string(&w, "accel", arbor_accel_kind_name(kind));
+    put_string(&w, "builder", arbor_builder_name(builder));
+    put_number(&w, "build_ms", s->build_ms);
+    put_number(&w, "nodes", (double)s->nodes);
+    put_number(&w, "leaves", (double)s->leaves);
+    put_number(&w, "empty_leaves", (double)s->empty_leaves);
+    put_number(&w, "max_depth", s->max_depth);
+    put_number(&w, "mean_leaf_depth", s->mean_leaf_depth);
+    put_number(&w, "mean_tris_per_leaf", s->mean_tris_per_leaf);
+    put_number(&w, "refs", (double)s->refs);
+    put_number(&w, "bytes", (double)s->bytes);
+    put_number(&w, "sah_cost", s->sah_cost);
+    return writer_end(&w);
+}
+
+cJSON *arbor_report_bench_row(const arbor_bench_row *r, bool with_ratios)
+{
+    json_writer w = writer_new();
+    put_string(&w, "model", r->model);
+    put_number(&w, "triangles", r->triangles);
+    put_string(&w, "accel", r->accel);
+    put_string(&w, "builder", r->builder);
+    put_number(&w, "threads", r->threads);
+    put_number(&w, "build_ms", r->build_ms);
+    put_number(&w, "mean_leaf_depth", r->mean_leaf_depth);
+    put_number(&w, "mean_tris_per_leaf", r->mean_tris_per_leaf);
+    put_number(&w, "sah_cost", r->sah_cost);
+    put_number(&w, "render_ms", r->render_ms);
+    for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+        char key[32];
+        snprintf(key, sizeof key, "%s_mrays", arbor_ray_set_name((arbor_ray_set)s));
+        put_number(&w, key, r->mrays[s]);
+    }
+    put_number(&w, "primary_hits", (double)r->primary_hits);
+    put_number(&w, "primary_tsum", r->primary_tsum);
+    for (int s = 0; with_ratios && s < ARBOR_SET_COUNT; s++) {
+        if (isnan(r->ratio[s]))
+            continue; /* the Embree row itself */
+        char key[32];
+        snprintf(key, sizeof key, "%s_ratio", arbor_ray_set_name((arbor_ray_set)s));
+        put_number(&w, key, r->ratio[s]);
+    }
+    return writer_end(&w);
+}
+
+cJSON *arbor_report_parse_timing(const char *model, const arbor_parse_timing *t)
+{
+    json_writer w = writer_new();
+    put_string(&w, "model", model);
+    put_number(&w, "bytes", (double)t->bytes);
+    put_number(&w, "triangles", t->triangles);
+    put_number(&w, "parse_ms", t->parse_ms);
+    put_number(&w, "mb_per_s", t->mb_per_s);
+    return writer_end(&w);
+}

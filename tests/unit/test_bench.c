@@ -1,0 +1,292 @@
+/*
+ * test_bench.c - the bench library (include/arbor/bench.h) and its JSON
+ * encoding (include/arbor/report.h): a one-run benchmark of every tree on a
+ * small Cornell box fills the rows it promised and reports each as it
+ * finishes; every tree traced the primary hits brute force finds on the same
+ * rays; a cancel flag, set before or during the run, stops it with
+ * ARBOR_ERR_CANCELLED; bad options are refused; the JSON keys are the ones
+ * scripts/bench_tables.py reads, NAN written as null; parse timing counts
+ * the file's bytes and triangles.
+ */
+#include <cjson/cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "arbor/bench.h"
+#include "arbor/brute.h"
+#include "arbor/embree_peer.h"
+#include "arbor/procgen.h"
+#include "arbor/raysets.h"
+#include "arbor/report.h"
+#include "support.h"
+#include "unity.h"
+
+static arbor_mesh mesh;
+
+void setUp(void)
+{
+    arbor_err e;
+    /* 4 x 4 quads: small enough for brute force over all 786,432 primary rays */
+    TEST_ASSERT_TRUE_MESSAGE(arbor_gen_cornell(&mesh, 4, &e), e.msg);
+}
+
+void tearDown(void)
+{
+    arbor_mesh_free(&mesh);
+}
+
+/* What row_done saw. */
+typedef struct {
+    size_t calls, done[16], total[16];
+    char names[16][32];
+    atomic_bool *cancel_after_first; /* set after the first row, when not NULL */
+} progress_log;
+
+static void log_row(void *user, const arbor_bench_row *row, size_t done, size_t total)
+{
+    progress_log *log = user;
+    if (log->calls < 16) {
+        log->done[log->calls] = done;
+        log->total[log->calls] = total;
+        snprintf(log->names[log->calls], sizeof log->names[0], "%s %s", row->accel, row->builder);
+    }
+    log->calls++;
+    if (log->cancel_after_first != NULL)
+        atomic_store(log->cancel_after_first, true);
+}
+
+static void one_run_opts(arbor_bench_opts *o, progress_log *log)
+{
+    arbor_bench_opts_init(o);
+    o->runs = 1;
+    o->threads = 2;
+    o->row_done = log_row;
+    o->user = log;
+}
+
+/* Primary hits of PROTOCOL.md's rays by brute force: the independent truth. */
+static uint64_t brute_primary_hits(void)
+{
+    arbor_raysets sets;
+    arbor_err e;
+    TEST_ASSERT_TRUE(arbor_raysets_primary(&mesh, &sets, &e));
+    arbor_hit *hit = malloc(sets.nprimary * sizeof *hit);
+    bool *found = malloc(sets.nprimary * sizeof *found);
+    arbor_brute_intersect_many(NULL, &mesh, sets.primary, sets.nprimary, hit, found, 0);
+    uint64_t hits = 0;
+    for (size_t i = 0; i < sets.nprimary; i++)
+        hits += found[i];
+    free(hit);
+    free(found);
+    arbor_raysets_free(&sets);
+    return hits;
+}
+
+static void test_every_tree_gets_its_row_and_the_same_hits_as_brute_force(void)
+{
+    progress_log log;
+    memset(&log, 0, sizeof log);
+    arbor_bench_opts o;
+    one_run_opts(&o, &log);
+    size_t total = arbor_bench_row_count(&o);
+    TEST_ASSERT_EQUAL_UINT64(ARBOR_ACCEL_KIND_COUNT * ARBOR_BUILDER_COUNT, total);
+    arbor_bench_row rows[ARBOR_ACCEL_KIND_COUNT * ARBOR_BUILDER_COUNT];
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(arbor_bench_mesh("cornell4", &mesh, &o, rows, &e), e.msg);
+
+    TEST_ASSERT_EQUAL_UINT64(total, log.calls);
+    for (size_t i = 0; i < total; i++) {
+        TEST_ASSERT_EQUAL_UINT64(i + 1, log.done[i]);
+        TEST_ASSERT_EQUAL_UINT64(total, log.total[i]);
+        char want[32];
+        snprintf(want, sizeof want, "%s %s", rows[i].accel, rows[i].builder);
+        TEST_ASSERT_EQUAL_STRING(want, log.names[i]);
+    }
+    uint64_t truth = brute_primary_hits();
+    TEST_ASSERT_TRUE(truth > 0 && truth < (uint64_t)ARBOR_PROTOCOL_WIDTH * ARBOR_PROTOCOL_HEIGHT);
+    for (size_t i = 0; i < total; i++) {
+        const arbor_bench_row *r = &rows[i];
+        TEST_ASSERT_EQUAL_STRING("cornell4", r->model);
+        TEST_ASSERT_EQUAL_STRING(arbor_accel_kind_name((arbor_accel_kind)(i / ARBOR_BUILDER_COUNT)), r->accel);
+        TEST_ASSERT_EQUAL_STRING(arbor_builder_name((arbor_builder)(i % ARBOR_BUILDER_COUNT)), r->builder);
+        TEST_ASSERT_EQUAL_UINT32(mesh.ntris, r->triangles);
+        TEST_ASSERT_EQUAL_INT(2, r->threads);
+        TEST_ASSERT_EQUAL_UINT64_MESSAGE(truth, r->primary_hits, r->builder);
+        TEST_ASSERT_TRUE(arbor_bench_same_hits(r, &rows[0]));
+        TEST_ASSERT_TRUE(r->build_ms >= 0.0 && r->render_ms > 0.0 && r->sah_cost > 0.0);
+        TEST_ASSERT_TRUE(r->mean_leaf_depth >= 0.0 && r->mean_tris_per_leaf > 0.0);
+        for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+            TEST_ASSERT_TRUE(r->mrays[s] > 0.0);
+            TEST_ASSERT_TRUE(isnan(r->ratio[s])); /* no Embree */
+        }
+    }
+}
+
+static void test_a_cancel_flag_set_before_stops_before_any_row(void)
+{
+    progress_log log;
+    memset(&log, 0, sizeof log);
+    arbor_bench_opts o;
+    one_run_opts(&o, &log);
+    atomic_bool cancel = true;
+    o.cancel = &cancel;
+    arbor_bench_row rows[ARBOR_ACCEL_KIND_COUNT * ARBOR_BUILDER_COUNT];
+    arbor_err e;
+    TEST_ASSERT_FALSE(arbor_bench_mesh("cornell4", &mesh, &o, rows, &e));
+    TEST_ASSERT_EQUAL_INT(ARBOR_ERR_CANCELLED, e.status);
+    TEST_ASSERT_EQUAL_UINT64(0, log.calls);
+
+    arbor_parse_timing t;
+    TEST_ASSERT_FALSE(arbor_bench_parse(test_repo_model("cornell.obj"), 1, &cancel, &t, &e));
+    TEST_ASSERT_EQUAL_INT(ARBOR_ERR_CANCELLED, e.status);
+}
+
+static void test_a_cancel_flag_set_during_the_run_stops_it_between_measurements(void)
+{
+    atomic_bool cancel = false;
+    progress_log log;
+    memset(&log, 0, sizeof log);
+    log.cancel_after_first = &cancel;
+    arbor_bench_opts o;
+    one_run_opts(&o, &log);
+    o.cancel = &cancel;
+    arbor_bench_row rows[ARBOR_ACCEL_KIND_COUNT * ARBOR_BUILDER_COUNT];
+    arbor_err e;
+    TEST_ASSERT_FALSE(arbor_bench_mesh("cornell4", &mesh, &o, rows, &e));
+    TEST_ASSERT_EQUAL_INT(ARBOR_ERR_CANCELLED, e.status);
+    TEST_ASSERT_EQUAL_UINT64(1, log.calls);
+    TEST_ASSERT_EQUAL_STRING("bvh spatial", log.names[0]);
+}
+
+static void test_bad_options_are_refused(void)
+{
+    arbor_bench_opts o;
+    arbor_bench_row rows[ARBOR_ACCEL_KIND_COUNT * ARBOR_BUILDER_COUNT + 1];
+    arbor_err e;
+    arbor_bench_opts_init(&o);
+    o.runs = 0;
+    TEST_ASSERT_FALSE(arbor_bench_mesh("m", &mesh, &o, rows, &e));
+    TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
+    TEST_ASSERT_NOT_NULL(strstr(e.msg, "runs"));
+
+    arbor_bench_opts_init(&o);
+    for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
+        o.builders[b] = false;
+    TEST_ASSERT_EQUAL_UINT64(0, arbor_bench_row_count(&o));
+    TEST_ASSERT_FALSE(arbor_bench_mesh("m", &mesh, &o, rows, &e));
+    TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
+
+    arbor_bench_opts_init(&o);
+    o.embree = true;
+    o.kinds[ARBOR_ACCEL_KD] = false;
+    TEST_ASSERT_EQUAL_UINT64(ARBOR_BUILDER_COUNT + 1, arbor_bench_row_count(&o));
+    if (!arbor_embree_available()) {
+        TEST_ASSERT_FALSE(arbor_bench_mesh("m", &mesh, &o, rows, &e));
+        TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
+        TEST_ASSERT_NOT_NULL(strstr(e.msg, "make bench-embree"));
+    }
+}
+
+/* The keys of o, comma-separated, into buf. */
+static void keys_of(const cJSON *o, char *buf, size_t size)
+{
+    size_t n = 0;
+    buf[0] = '\0';
+    for (const cJSON *item = o->child; item != NULL; item = item->next)
+        n += (size_t)snprintf(buf + n, size - n, "%s%s", n ? "," : "", item->string);
+}
+
+static void test_json_keys_and_null_for_what_does_not_apply(void)
+{
+    arbor_bench_row row;
+    memset(&row, 0, sizeof row);
+    snprintf(row.model, sizeof row.model, "castle.obj");
+    row.accel = "embree";
+    row.builder = "default";
+    row.mean_leaf_depth = row.mean_tris_per_leaf = row.sah_cost = row.render_ms = NAN;
+    for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+        row.mrays[s] = 1.5;
+        row.ratio[s] = NAN;
+    }
+    char keys[512];
+    const char *row_keys = "model,triangles,accel,builder,threads,build_ms,mean_leaf_depth,mean_tris_per_leaf,"
+                           "sah_cost,render_ms,primary_mrays,diffuse_mrays,shadow_mrays,primary_hits,primary_tsum";
+    cJSON *o = arbor_report_bench_row(&row, true);
+    TEST_ASSERT_NOT_NULL(o);
+    keys_of(o, keys, sizeof keys);
+    TEST_ASSERT_EQUAL_STRING(row_keys, keys); /* Embree's own row: no ratios */
+    TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "sah_cost")));
+    TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "render_ms")));
+    cJSON_Delete(o);
+
+    row.accel = "bvh";
+    row.builder = "sah";
+    for (int s = 0; s < ARBOR_SET_COUNT; s++)
+        row.ratio[s] = 0.5;
+    o = arbor_report_bench_row(&row, true);
+    keys_of(o, keys, sizeof keys);
+    char with_ratios[600];
+    snprintf(with_ratios, sizeof with_ratios, "%s,primary_ratio,diffuse_ratio,shadow_ratio", row_keys);
+    TEST_ASSERT_EQUAL_STRING(with_ratios, keys);
+    TEST_ASSERT_EQUAL_DOUBLE(0.5, cJSON_GetObjectItem(o, "shadow_ratio")->valuedouble);
+    cJSON_Delete(o);
+    o = arbor_report_bench_row(&row, false);
+    keys_of(o, keys, sizeof keys);
+    TEST_ASSERT_EQUAL_STRING(row_keys, keys);
+    cJSON_Delete(o);
+
+    arbor_tree_stats s;
+    memset(&s, 0, sizeof s);
+    s.nodes = 7;
+    s.sah_cost = NAN;
+    o = arbor_report_tree_stats("m.obj", 12, ARBOR_ACCEL_KD, ARBOR_BUILD_MEAN, &s);
+    keys_of(o, keys, sizeof keys);
+    TEST_ASSERT_EQUAL_STRING("model,triangles,accel,builder,build_ms,nodes,leaves,empty_leaves,max_depth,"
+                             "mean_leaf_depth,mean_tris_per_leaf,refs,bytes,sah_cost",
+                             keys);
+    TEST_ASSERT_EQUAL_STRING("kd", cJSON_GetObjectItem(o, "accel")->valuestring);
+    TEST_ASSERT_EQUAL_STRING("mean", cJSON_GetObjectItem(o, "builder")->valuestring);
+    TEST_ASSERT_EQUAL_DOUBLE(7.0, cJSON_GetObjectItem(o, "nodes")->valuedouble);
+    TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "sah_cost")));
+    cJSON_Delete(o);
+}
+
+static void test_parse_timing_counts_the_files_bytes_and_triangles(void)
+{
+    char dir[] = "/tmp/arbor_test_bench_XXXXXX", path[64];
+    TEST_ASSERT_NOT_NULL(mkdtemp(dir));
+    snprintf(path, sizeof path, "%s/m.obj", dir);
+    const char *text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n";
+    FILE *f = fopen(path, "w");
+    TEST_ASSERT_NOT_NULL(f);
+    TEST_ASSERT_EQUAL_INT((int)strlen(text), (int)fwrite(text, 1, strlen(text), f));
+    TEST_ASSERT_EQUAL_INT(0, fclose(f));
+    arbor_parse_timing t;
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(arbor_bench_parse(path, 3, NULL, &t, &e), e.msg);
+    TEST_ASSERT_EQUAL_UINT64(strlen(text), t.bytes);
+    TEST_ASSERT_EQUAL_UINT32(2, t.triangles);
+    TEST_ASSERT_TRUE(t.parse_ms >= 0.0);
+    cJSON *o = arbor_report_parse_timing("x.obj", &t);
+    char keys[128];
+    keys_of(o, keys, sizeof keys);
+    TEST_ASSERT_EQUAL_STRING("model,bytes,triangles,parse_ms,mb_per_s", keys);
+    cJSON_Delete(o);
+    unlink(path);
+    rmdir(dir);
+}
+
+int main(void)
+{
+    UNITY_BEGIN();
+    RUN_TEST(test_every_tree_gets_its_row_and_the_same_hits_as_brute_force);
+    RUN_TEST(test_a_cancel_flag_set_before_stops_before_any_row);
+    RUN_TEST(test_a_cancel_flag_set_during_the_run_stops_it_between_measurements);
+    RUN_TEST(test_bad_options_are_refused);
+    RUN_TEST(test_json_keys_and_null_for_what_does_not_apply);
+    RUN_TEST(test_parse_timing_counts_the_files_bytes_and_triangles);
+    return UNITY_END();
+}
