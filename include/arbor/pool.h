@@ -1,6 +1,9 @@
 /*
  * pool.h - a pool of worker threads that runs jobs split into tasks (the
- * renderer's frames split into tiles).
+ * renderer's frames split into tiles), and parallel loops on it (the tree
+ * builders' recursions, ray sets). It is the one source of threads for the
+ * layers above core, so that work running at once (concurrent requests to
+ * the daemon) shares the cores instead of oversubscribing them.
  *
  * A job is ntasks independent tasks plus a completion callback. Any number
  * of jobs may be in flight at once: each time a worker takes its next task
@@ -9,8 +12,8 @@
  * cancelled at any time; the tasks already running finish, no new one
  * starts.
  *
- * The completion callback `done(ctx, cancelled)` runs exactly once per
- * submitted job, always on a worker thread (never inside submit, cancel or
+ * The completion callback `done(ctx, cancelled)` (may be NULL) runs exactly
+ * once per submitted job, always on a worker thread (never inside submit, cancel or
  * destroy), after the last task has finished or, for a cancelled job, after
  * the tasks that were running have finished. `cancelled` is true when some
  * tasks never ran. Only after done has returned does arbor_job_wait return.
@@ -24,11 +27,32 @@
  *
  * arbor_pool_destroy cancels every job not yet finished, lets the workers
  * call their done callbacks, and joins the workers. It must not be called
- * from a task or a done callback (it would wait for its own thread).
+ * from a task or a done callback (it would wait for its own thread), nor
+ * while a parallel loop on the pool is running.
+ *
+ * Parallel loops. arbor_pool_parallel runs fn(ctx, i) for every i in
+ * [0, n) and returns when all have returned. It may be called from any
+ * thread, pool workers included, and nested to any depth (a loop's fn may
+ * run loops of its own): it never deadlocks, because the caller never waits
+ * for work that has not started. The caller takes indices from a shared
+ * counter itself; a helper job of up to max_threads - 1 tasks lets idle
+ * workers take indices from the same counter. When the counter runs out the
+ * caller waits only for the indices helpers are running, then cancels the
+ * helper tasks that have not started. Which thread runs which index is
+ * unspecified: results must not depend on it. Without a pool (p NULL), or
+ * when the helper job cannot be made, every index runs on the caller.
+ *
+ * A budget limits the threads a whole piece of work keeps busy at once,
+ * across every loop nested inside it (a tree build: at most opts.threads
+ * threads, however deep the recursion forks). The thread that starts the
+ * work counts as one; a helper task takes one of the rest for as long as it
+ * works and gives it back when it runs out of indices, and one that finds
+ * none left returns at once.
  */
 #ifndef ARBOR_POOL_H
 #define ARBOR_POOL_H
 
+#include <stdatomic.h>
 #include <stdbool.h>
 #include <stdint.h>
 
@@ -62,5 +86,25 @@ void arbor_job_cancel(arbor_job *j);
 bool arbor_job_wait(arbor_job *j);
 /* Drops the caller's reference. */
 void arbor_job_release(arbor_job *j);
+
+/* Threads a piece of work may keep busy at once; see above. Plain data the
+ * caller owns, shared by the loops that name it. */
+typedef struct {
+    atomic_int spare; /* threads not yet taken, besides the one that started the work */
+} arbor_pool_budget;
+
+/* A budget of `threads` threads, the calling thread included (0 = as many
+ * as p has, or 1 when p is NULL). */
+void arbor_pool_budget_init(arbor_pool_budget *b, const arbor_pool *p, uint32_t threads);
+
+/* Runs fn(ctx, i) for every i in [0, n) on the caller and idle workers of p
+ * within budget b, and returns when all have returned. Cannot fail: what no
+ * helper takes runs on the caller. b must outlive the call only. */
+void arbor_pool_parallel_within(arbor_pool *p, arbor_pool_budget *b, uint32_t n, void (*fn)(void *ctx, uint32_t i),
+                                void *ctx);
+
+/* The same on at most max_threads threads, the caller included (0 = as
+ * many as p has). */
+void arbor_pool_parallel(arbor_pool *p, uint32_t n, uint32_t max_threads, void (*fn)(void *ctx, uint32_t i), void *ctx);
 
 #endif

@@ -1,13 +1,17 @@
 /*
  * test_pool.c - the worker pool: every task runs once, done runs once on a
  * worker, jobs in flight are served round-robin, cancel stops a job between
- * tasks, destroy cancels what is queued.
+ * tasks, destroy cancels what is queued; parallel loops run every index
+ * once, from any thread, nested inside pool tasks with every worker busy,
+ * without a pool, within their thread limits, with the same results on any
+ * number of threads. A deadlock ends the binary by SIGALRM (a failure).
  */
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "arbor/pool.h"
 #include "support.h"
@@ -276,8 +280,290 @@ static void test_bad_arguments(void)
     TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
 }
 
+/* ---- parallel loops ---- */
+
+#define LOOP_N 20000
+
+typedef struct {
+    atomic_int runs[LOOP_N];
+    uint64_t value[LOOP_N];
+    atomic_int running, most_running; /* indices running at once, and the most seen */
+    long nap_us;                      /* each index sleeps this long (0: none) */
+    pthread_t only_thread;            /* when check_thread: every index must run on it */
+    bool check_thread;
+    atomic_bool wrong_thread;
+} loop_log;
+
+static loop_log *new_loop_log(void)
+{
+    loop_log *l = calloc(1, sizeof *l);
+    TEST_ASSERT_NOT_NULL(l);
+    return l;
+}
+
+static uint64_t mix(uint64_t x)
+{
+    x ^= x >> 33;
+    x *= 0xff51afd7ed558ccdULL;
+    x ^= x >> 33;
+    return x;
+}
+
+static void loop_index(void *ctx, uint32_t i)
+{
+    loop_log *l = ctx;
+    int now = atomic_fetch_add(&l->running, 1) + 1;
+    for (int most = atomic_load(&l->most_running); now > most;)
+        if (atomic_compare_exchange_weak(&l->most_running, &most, now))
+            break;
+    if (l->check_thread && !pthread_equal(pthread_self(), l->only_thread))
+        atomic_store(&l->wrong_thread, true);
+    if (l->nap_us > 0) {
+        struct timespec ts = {0, l->nap_us * 1000L};
+        nanosleep(&ts, NULL);
+    }
+    l->value[i] = mix(i + 1);
+    atomic_fetch_add(&l->runs[i], 1);
+    atomic_fetch_sub(&l->running, 1);
+}
+
+static void assert_each_ran_once(loop_log *l, uint32_t n)
+{
+    for (uint32_t i = 0; i < LOOP_N; i++)
+        TEST_ASSERT_EQUAL_INT_MESSAGE(i < n ? 1 : 0, atomic_load(&l->runs[i]), "index runs");
+}
+
+static void test_parallel_runs_every_index_once(void)
+{
+    arbor_err e;
+    arbor_pool *p = arbor_pool_create(3, &e);
+    TEST_ASSERT_NOT_NULL(p);
+    const uint32_t sizes[] = {0, 1, 2, 3, 7, 1000, LOOP_N};
+    const uint32_t limits[] = {0, 1, 2, 4, 64};
+    for (size_t s = 0; s < sizeof sizes / sizeof *sizes; s++)
+        for (size_t t = 0; t < sizeof limits / sizeof *limits; t++) {
+            loop_log *l = new_loop_log();
+            arbor_pool_parallel(p, sizes[s], limits[t], loop_index, l);
+            assert_each_ran_once(l, sizes[s]);
+            free(l);
+        }
+    arbor_pool_destroy(p);
+}
+
+static void test_parallel_without_a_pool_runs_on_the_caller(void)
+{
+    loop_log *l = new_loop_log();
+    l->check_thread = true;
+    l->only_thread = pthread_self();
+    arbor_pool_parallel(NULL, 1000, 8, loop_index, l);
+    assert_each_ran_once(l, 1000);
+    TEST_ASSERT_FALSE(atomic_load(&l->wrong_thread));
+    TEST_ASSERT_EQUAL_INT(1, atomic_load(&l->most_running));
+    free(l);
+}
+
+/* A loop limited to max_threads never runs more indices at once, and with
+ * idle workers and slow indices it does use more than the caller. */
+static void test_parallel_stays_within_max_threads(void)
+{
+    arbor_err e;
+    arbor_pool *p = arbor_pool_create(4, &e);
+    TEST_ASSERT_NOT_NULL(p);
+    for (uint32_t max = 1; max <= 3; max++) {
+        loop_log *l = new_loop_log();
+        l->nap_us = 2000;
+        arbor_pool_parallel(p, 40, max, loop_index, l);
+        assert_each_ran_once(l, 40);
+        TEST_ASSERT_TRUE(atomic_load(&l->most_running) <= (int)max);
+        if (max > 1) {
+            TEST_ASSERT_TRUE(atomic_load(&l->most_running) > 1);
+        }
+        free(l);
+    }
+    arbor_pool_destroy(p);
+}
+
+/* Nested loops: each index of a level runs a loop of NEST_WIDTH indices of
+ * the next level, NEST_LEVELS deep; the leaves count themselves. */
+#define NEST_LEVELS 4
+#define NEST_WIDTH 4
+#define NEST_LEAVES (NEST_WIDTH * NEST_WIDTH * NEST_WIDTH * NEST_WIDTH)
+
+typedef struct {
+    arbor_pool *pool;
+    arbor_pool_budget *budget; /* NULL: each loop limited to NEST_WIDTH threads on its own */
+    atomic_int leaf_runs[NEST_LEAVES];
+    atomic_int running, most_running;
+} nest;
+
+typedef struct {
+    nest *n;
+    uint32_t level, base; /* base: the leaf number of this subtree's first leaf */
+} nest_node;
+
+static void nest_index(void *ctx, uint32_t i);
+
+static void nest_run(nest *n, uint32_t level, uint32_t base)
+{
+    nest_node node = {n, level, base};
+    if (n->budget != NULL)
+        arbor_pool_parallel_within(n->pool, n->budget, NEST_WIDTH, nest_index, &node);
+    else
+        arbor_pool_parallel(n->pool, NEST_WIDTH, NEST_WIDTH, nest_index, &node);
+}
+
+static void nest_index(void *ctx, uint32_t i)
+{
+    const nest_node *node = ctx;
+    nest *n = node->n;
+    uint32_t base = node->base * NEST_WIDTH + i;
+    if (node->level + 1 < NEST_LEVELS) {
+        nest_run(n, node->level + 1, base);
+        return;
+    }
+    int now = atomic_fetch_add(&n->running, 1) + 1;
+    for (int most = atomic_load(&n->most_running); now > most;)
+        if (atomic_compare_exchange_weak(&n->most_running, &most, now))
+            break;
+    nap_ms(1);
+    atomic_fetch_add(&n->leaf_runs[base], 1);
+    atomic_fetch_sub(&n->running, 1);
+}
+
+static void nest_task(void *ctx, uint32_t task)
+{
+    (void)task;
+    nest_run(ctx, 0, 0);
+}
+
+static void assert_every_leaf_once(nest *n)
+{
+    for (uint32_t i = 0; i < NEST_LEAVES; i++)
+        TEST_ASSERT_EQUAL_INT_MESSAGE(1, atomic_load(&n->leaf_runs[i]), "leaf runs");
+}
+
+/* Every worker of a pool of 2 runs a task that runs a 4-level nested loop:
+ * no worker is idle to help, so each caller must get through alone. */
+static void test_nested_parallel_inside_busy_workers(void)
+{
+    arbor_err e;
+    arbor_pool *p = arbor_pool_create(2, &e);
+    TEST_ASSERT_NOT_NULL(p);
+    nest *trees[2];
+    arbor_job *jobs[2];
+    for (int k = 0; k < 2; k++) {
+        trees[k] = calloc(1, sizeof *trees[k]);
+        trees[k]->pool = p;
+        jobs[k] = arbor_job_new(1, nest_task, NULL, NULL, trees[k], &e);
+        TEST_ASSERT_NOT_NULL(jobs[k]);
+        TEST_ASSERT_TRUE(arbor_pool_submit(p, jobs[k], &e));
+    }
+    /* and a third nest from this thread at the same time */
+    nest *outside = calloc(1, sizeof *outside);
+    outside->pool = p;
+    nest_run(outside, 0, 0);
+    for (int k = 0; k < 2; k++) {
+        TEST_ASSERT_TRUE(arbor_job_wait(jobs[k]));
+        arbor_job_release(jobs[k]);
+        assert_every_leaf_once(trees[k]);
+        free(trees[k]);
+    }
+    assert_every_leaf_once(outside);
+    free(outside);
+    arbor_pool_destroy(p);
+}
+
+/* A budget shared by every level of a nested loop holds the whole nest to
+ * its thread count, however many loops fork. */
+static void test_budget_limits_a_whole_nest(void)
+{
+    arbor_err e;
+    arbor_pool *p = arbor_pool_create(4, &e);
+    TEST_ASSERT_NOT_NULL(p);
+    for (uint32_t threads = 1; threads <= 3; threads++) {
+        arbor_pool_budget b;
+        arbor_pool_budget_init(&b, p, threads);
+        nest *n = calloc(1, sizeof *n);
+        n->pool = p;
+        n->budget = &b;
+        nest_run(n, 0, 0);
+        assert_every_leaf_once(n);
+        TEST_ASSERT_TRUE(atomic_load(&n->most_running) <= (int)threads);
+        TEST_ASSERT_EQUAL_INT((int)threads - 1, atomic_load(&b.spare));
+        free(n);
+    }
+    arbor_pool_destroy(p);
+}
+
+/* The same values in every slot whatever the pool and thread limit. */
+static void test_parallel_results_do_not_depend_on_threads(void)
+{
+    arbor_err e;
+    arbor_pool *pools[3] = {NULL, arbor_pool_create(1, &e), arbor_pool_create(4, &e)};
+    TEST_ASSERT_NOT_NULL(pools[1]);
+    TEST_ASSERT_NOT_NULL(pools[2]);
+    loop_log *first = NULL;
+    for (int k = 0; k < 3; k++)
+        for (uint32_t max = 0; max <= 5; max++) {
+            loop_log *l = new_loop_log();
+            arbor_pool_parallel(pools[k], LOOP_N, max, loop_index, l);
+            assert_each_ran_once(l, LOOP_N);
+            if (first == NULL)
+                first = l;
+            else {
+                TEST_ASSERT_EQUAL_MEMORY(first->value, l->value, sizeof l->value);
+                free(l);
+            }
+        }
+    free(first);
+    arbor_pool_destroy(pools[1]);
+    arbor_pool_destroy(pools[2]);
+}
+
+/* The only worker is held busy, so the loop's helper task waits in the
+ * queue while the caller runs every index; the helper is cancelled and
+ * never runs, and the loop's memory is freed later (ASan checks that). Then
+ * many quick loops race their helpers' starts against their callers' ends. */
+static void test_loop_helpers_that_start_late_or_never(void)
+{
+    arbor_err e;
+    arbor_pool *p = arbor_pool_create(1, &e);
+    TEST_ASSERT_NOT_NULL(p);
+    atomic_bool gate = false, began = false;
+    job_log *busy = new_log(1);
+    busy->gate = &gate;
+    busy->task0_began = &began;
+    arbor_job *j = arbor_job_new(1, log_task, log_done, NULL, busy, &e);
+    TEST_ASSERT_TRUE(arbor_pool_submit(p, j, &e));
+    while (!atomic_load(&began))
+        nap_ms(1);
+    loop_log *l = new_loop_log();
+    l->check_thread = true;
+    l->only_thread = pthread_self();
+    arbor_pool_parallel(p, 100, 2, loop_index, l);
+    assert_each_ran_once(l, 100);
+    TEST_ASSERT_FALSE(atomic_load(&l->wrong_thread));
+    free(l);
+    atomic_store(&gate, true);
+    TEST_ASSERT_TRUE(arbor_job_wait(j));
+    arbor_job_release(j);
+    free(busy);
+    arbor_pool_destroy(p);
+
+    p = arbor_pool_create(2, &e);
+    TEST_ASSERT_NOT_NULL(p);
+    for (int round = 0; round < 2000; round++) {
+        l = new_loop_log();
+        arbor_pool_parallel(p, 2, 3, loop_index, l);
+        assert_each_ran_once(l, 2);
+        free(l);
+    }
+    arbor_pool_destroy(p);
+}
+
 int main(void)
 {
+    alarm(120);
     UNITY_BEGIN();
     RUN_TEST(test_every_task_runs_once_and_done_on_a_worker);
     RUN_TEST(test_many_jobs_at_once_all_complete);
@@ -286,5 +572,12 @@ int main(void)
     RUN_TEST(test_cancel_of_a_queued_job_calls_done_on_a_worker);
     RUN_TEST(test_destroy_cancels_queued_jobs);
     RUN_TEST(test_bad_arguments);
+    RUN_TEST(test_parallel_runs_every_index_once);
+    RUN_TEST(test_parallel_without_a_pool_runs_on_the_caller);
+    RUN_TEST(test_parallel_stays_within_max_threads);
+    RUN_TEST(test_nested_parallel_inside_busy_workers);
+    RUN_TEST(test_budget_limits_a_whole_nest);
+    RUN_TEST(test_parallel_results_do_not_depend_on_threads);
+    RUN_TEST(test_loop_helpers_that_start_late_or_never);
     return UNITY_END();
 }

@@ -1,6 +1,6 @@
 /*
  * pool.c - worker threads running jobs split into tasks, round-robin over
- * the jobs in flight (see include/arbor/pool.h).
+ * the jobs in flight, and parallel loops on them (see include/arbor/pool.h).
  *
  * Every piece of scheduling state lives under the pool's one mutex, taken
  * once to fetch a task and once to account for it, never while a task runs.
@@ -9,6 +9,10 @@
  * after each fetch. A job leaves the ring when its last task is handed out or
  * it is cancelled. A cancelled job with no task running is put on the
  * `finishing` list so a worker, not the canceller, calls its done callback.
+ *
+ * A parallel loop is a helper job whose context, the loop, holds the index
+ * counter; the job's references keep the loop alive for helper tasks that
+ * start after the caller has returned. See the end of this file.
  */
 #include <pthread.h>
 #include <stdatomic.h>
@@ -81,7 +85,6 @@ static bool in_ring(const arbor_job *j)
     return j->next != NULL;
 }
 
-/* Marks j cancelled (lock held); queues it for a worker if nothing of it runs. */
 /* The last reference is gone: tell the owner, then free. */
 static void job_destroy(arbor_job *j)
 {
@@ -90,6 +93,7 @@ static void job_destroy(arbor_job *j)
     free(j);
 }
 
+/* Marks j cancelled (lock held); queues it for a worker if nothing of it runs. */
 static void cancel_locked(arbor_pool *p, arbor_job *j)
 {
     if (j->finishing)
@@ -112,7 +116,8 @@ static void finish_job(arbor_pool *p, arbor_job *j)
 {
     bool cancelled = j->completed < j->ntasks;
     pthread_mutex_unlock(&p->lock);
-    j->done(j->ctx, cancelled);
+    if (j->done != NULL)
+        j->done(j->ctx, cancelled);
     pthread_mutex_lock(&p->lock);
     j->finished = true;
     pthread_cond_broadcast(&p->finished);
@@ -248,7 +253,7 @@ bool arbor_pool_submit(arbor_pool *p, arbor_job *j, arbor_err *e)
     if (p->shutting_down || j->pool != NULL) {
         pthread_mutex_unlock(&p->lock);
         return arbor_fail(e, p->shutting_down ? ARBOR_ERR_CANCELLED : ARBOR_ERR_INVALID,
-                          p->shutting_down ? "the render pool is shutting down" : "job submitted twice");
+                          p->shutting_down ? "the pool is shutting down" : "job submitted twice");
     }
     j->pool = p;
     atomic_fetch_add(&j->refs, 1);
@@ -283,4 +288,151 @@ void arbor_job_release(arbor_job *j)
 {
     if (j != NULL && atomic_fetch_sub(&j->refs, 1) == 1)
         job_destroy(j);
+}
+
+/* ---- parallel loops ---- */
+
+/* One loop, the context of its helper job. `budget` may be touched only by
+ * a helper counted in `active` that found the loop open: the caller waits
+ * for those before it returns, and the budget need not outlive the caller. */
+typedef struct {
+    void (*fn)(void *ctx, uint32_t i);
+    void *ctx;
+    uint32_t n;
+    atomic_uint_fast64_t next; /* the next index to claim; 64 bits, so claims past n cannot wrap */
+    atomic_uint active;        /* helpers between their start and their end */
+    atomic_bool closed;        /* every index is claimed: a helper starting now must do nothing */
+    arbor_pool_budget *budget;
+    pthread_mutex_t lock;
+    pthread_cond_t idle;       /* broadcast when `active` drops to 0 */
+} parallel_loop;
+
+void arbor_pool_budget_init(arbor_pool_budget *b, const arbor_pool *p, uint32_t threads)
+{
+    if (threads == 0)
+        threads = p != NULL ? (uint32_t)p->nthreads : 1;
+    if (threads > (uint32_t)INT32_MAX)
+        threads = (uint32_t)INT32_MAX;
+    atomic_init(&b->spare, (int)threads - 1);
+}
+
+static bool budget_take(arbor_pool_budget *b)
+{
+    int spare = atomic_load_explicit(&b->spare, memory_order_relaxed);
+    while (spare > 0)
+        if (atomic_compare_exchange_weak(&b->spare, &spare, spare - 1))
+            return true;
+    return false;
+}
+
+static void budget_give(arbor_pool_budget *b)
+{
+    atomic_fetch_add(&b->spare, 1);
+}
+
+/* Runs indices until none is left to claim. */
+static void loop_claim(parallel_loop *l)
+{
+    for (uint64_t i; (i = atomic_fetch_add_explicit(&l->next, 1, memory_order_relaxed)) < l->n;)
+        l->fn(l->ctx, (uint32_t)i);
+}
+
+/* A helper task. It registers in `active` before it looks at `closed`
+ * (the caller sets `closed` before it reads `active`; both sequentially
+ * consistent), so either the caller waits for it or it sees the loop closed
+ * and leaves the budget alone. */
+static void loop_help(void *arg, uint32_t task)
+{
+    (void)task;
+    parallel_loop *l = arg;
+    atomic_fetch_add(&l->active, 1);
+    if (!atomic_load(&l->closed) && budget_take(l->budget)) {
+        loop_claim(l);
+        budget_give(l->budget);
+    }
+    if (atomic_fetch_sub(&l->active, 1) == 1) {
+        pthread_mutex_lock(&l->lock);
+        pthread_cond_broadcast(&l->idle);
+        pthread_mutex_unlock(&l->lock);
+    }
+}
+
+/* The helper job's last reference is gone. */
+static void loop_free(void *arg)
+{
+    parallel_loop *l = arg;
+    pthread_cond_destroy(&l->idle);
+    pthread_mutex_destroy(&l->lock);
+    free(l);
+}
+
+/* A submitted helper job of `helpers` tasks for the loop, or NULL when one
+ * cannot be had (out of memory, the pool shutting down). */
+static arbor_job *loop_start(arbor_pool *p, arbor_pool_budget *b, uint32_t n, uint32_t helpers,
+                             void (*fn)(void *ctx, uint32_t i), void *ctx)
+{
+    parallel_loop *l = calloc(1, sizeof *l);
+    if (l == NULL)
+        return NULL;
+    l->fn = fn;
+    l->ctx = ctx;
+    l->n = n;
+    l->budget = b;
+    atomic_init(&l->next, 0);
+    atomic_init(&l->active, 0);
+    atomic_init(&l->closed, false);
+    pthread_mutex_init(&l->lock, NULL);
+    pthread_cond_init(&l->idle, NULL);
+    arbor_job *j = arbor_job_new(helpers, loop_help, NULL, loop_free, l, NULL);
+    if (j == NULL) {
+        loop_free(l);
+        return NULL;
+    }
+    if (!arbor_pool_submit(p, j, NULL)) {
+        arbor_job_release(j);
+        return NULL;
+    }
+    return j;
+}
+
+/* The caller's part: indices until none is left, then the wait for the
+ * helpers still running. They are running (not queued), so they finish. */
+static void loop_finish(arbor_job *j)
+{
+    parallel_loop *l = j->ctx;
+    loop_claim(l);
+    atomic_store(&l->closed, true);
+    arbor_job_cancel(j);
+    pthread_mutex_lock(&l->lock);
+    while (atomic_load(&l->active) != 0)
+        pthread_cond_wait(&l->idle, &l->lock);
+    pthread_mutex_unlock(&l->lock);
+    arbor_job_release(j);
+}
+
+void arbor_pool_parallel_within(arbor_pool *p, arbor_pool_budget *b, uint32_t n, void (*fn)(void *ctx, uint32_t i),
+                                void *ctx)
+{
+    /* No more helpers than indices to share, workers, or threads the budget
+     * has spare now: with none spare the loop costs no allocation at all. */
+    int spare = atomic_load_explicit(&b->spare, memory_order_relaxed);
+    uint32_t helpers = p != NULL && n > 1 && spare > 0 ? n - 1 : 0;
+    if (helpers > (uint32_t)spare)
+        helpers = (uint32_t)spare;
+    if (p != NULL && helpers > (uint32_t)p->nthreads)
+        helpers = (uint32_t)p->nthreads;
+    arbor_job *j = helpers > 0 ? loop_start(p, b, n, helpers, fn, ctx) : NULL;
+    if (j != NULL) {
+        loop_finish(j);
+        return;
+    }
+    for (uint32_t i = 0; i < n; i++)
+        fn(ctx, i);
+}
+
+void arbor_pool_parallel(arbor_pool *p, uint32_t n, uint32_t max_threads, void (*fn)(void *ctx, uint32_t i), void *ctx)
+{
+    arbor_pool_budget b;
+    arbor_pool_budget_init(&b, p, max_threads);
+    arbor_pool_parallel_within(p, &b, n, fn, ctx);
 }
