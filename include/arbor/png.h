@@ -19,6 +19,12 @@
 
 #include "arbor/err.h"
 
+/* Writes the image to path whole or not at all: through a temporary file
+ * beside it, renamed over path once complete, so a failed write leaves
+ * whatever was at path untouched (and removes only the temporary file). A
+ * file that is replaced keeps its permissions; a symbolic link keeps
+ * pointing where it did, at the new image. Something at path that is not a
+ * regular file (/dev/stdout, a FIFO) is written in place and never removed. */
 bool arbor_png_write_file(const char *path, const uint8_t *rgb, int width, int height, arbor_err *e);
 bool arbor_png_encode(const uint8_t *rgb, int width, int height, uint8_t **out, size_t *out_len, arbor_err *e);
 

@@ -660,11 +660,21 @@ bool arbor_obj_mtl_path(const char *path, char *buf, size_t size)
     return written >= 0 && (size_t)written < size;
 }
 
+/* "cannot WHAT PATH: reason" for errno value err; strerror_r, not strerror,
+ * whose buffer other threads (a daemon's) may overwrite. */
+static bool fail_errno(arbor_err *e, const char *what, const char *path, int err)
+{
+    char reason[128];
+    if (strerror_r(err, reason, sizeof reason) != 0)
+        snprintf(reason, sizeof reason, "error %d", err);
+    return arbor_fail(e, ARBOR_ERR_IO, "cannot %s %s: %s", what, path, reason);
+}
+
 static FILE *open_for_writing(const char *path, arbor_err *e)
 {
     FILE *f = fopen(path, "w");
     if (f == NULL)
-        arbor_fail(e, ARBOR_ERR_IO, "cannot create %s: %s", path, strerror(errno));
+        fail_errno(e, "create", path, errno);
     return f;
 }
 
@@ -679,7 +689,7 @@ static bool close_written(FILE *f, const char *path, arbor_err *e)
         saved = errno;
     }
     if (failed)
-        return arbor_fail(e, ARBOR_ERR_IO, "cannot write %s: %s", path, strerror(saved));
+        return fail_errno(e, "write", path, saved);
     return true;
 }
 

@@ -1,11 +1,17 @@
 /*
  * test_png.c - PNG encoding: images read back by libpng (from memory and
  * from a file) have the size and the pixels written; errors come back as
- * arbor_err.
+ * arbor_err; a file is replaced whole or not at all (what was there before
+ * survives a failed write, nothing but the image is left behind), keeping
+ * its permissions and symbolic links, and devices are written in place,
+ * never removed.
  */
+#include <dirent.h>
 #include <png.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "arbor/png.h"
@@ -109,11 +115,145 @@ static void test_errors_are_reported_not_printed(void)
     TEST_ASSERT_NOT_NULL(strstr(e.msg, "png:"));
 }
 
+/* A scratch folder per test. */
+static char scratch[64];
+
+static const char *in_scratch(const char *name)
+{
+    static char path[128];
+    snprintf(path, sizeof path, "%s/%s", scratch, name);
+    return path;
+}
+
+static void make_scratch(void)
+{
+    snprintf(scratch, sizeof scratch, "/tmp/arbor_test_png_XXXXXX");
+    TEST_ASSERT_NOT_NULL(mkdtemp(scratch));
+}
+
+/* Entries in the scratch folder besides . and .. */
+static int scratch_entries(void)
+{
+    DIR *d = opendir(scratch);
+    TEST_ASSERT_NOT_NULL(d);
+    int n = 0;
+    for (struct dirent *ent; (ent = readdir(d)) != NULL;)
+        n += strcmp(ent->d_name, ".") != 0 && strcmp(ent->d_name, "..") != 0;
+    closedir(d);
+    return n;
+}
+
+static void remove_scratch(const char *const *names, int n)
+{
+    for (int i = 0; i < n; i++)
+        unlink(in_scratch(names[i]));
+    TEST_ASSERT_EQUAL_INT(0, rmdir(scratch));
+}
+
+static void write_text_file(const char *path, const char *text)
+{
+    FILE *f = fopen(path, "w");
+    TEST_ASSERT_NOT_NULL(f);
+    fputs(text, f);
+    TEST_ASSERT_EQUAL_INT(0, fclose(f));
+}
+
+static void assert_file_holds(const char *path, const char *text)
+{
+    char buf[64] = "";
+    FILE *f = fopen(path, "r");
+    TEST_ASSERT_NOT_NULL(f);
+    size_t n = fread(buf, 1, sizeof buf - 1, f);
+    buf[n] = '\0';
+    fclose(f);
+    TEST_ASSERT_EQUAL_STRING(text, buf);
+}
+
+static void assert_is_png(const char *path)
+{
+    png_image img;
+    memset(&img, 0, sizeof img);
+    img.version = PNG_IMAGE_VERSION;
+    TEST_ASSERT_TRUE(png_image_begin_read_from_file(&img, path));
+    png_image_free(&img);
+}
+
+static void test_a_failed_write_leaves_what_was_there(void)
+{
+    make_scratch();
+    const char *path = in_scratch("old.png");
+    write_text_file(path, "keep me");
+    uint8_t px[3] = {1, 2, 3};
+    arbor_err e;
+    /* both failures come after the temporary file exists: ours, and libpng's */
+    TEST_ASSERT_FALSE(arbor_png_write_file(path, px, 0, 1, &e));
+    TEST_ASSERT_FALSE(arbor_png_write_file(path, px, 0x7fffffff, 1, &e));
+    TEST_ASSERT_EQUAL_INT(ARBOR_ERR_IO, e.status);
+    assert_file_holds(path, "keep me");
+    TEST_ASSERT_EQUAL_INT(1, scratch_entries());
+    const char *names[] = {"old.png"};
+    remove_scratch(names, 1);
+}
+
+static void test_a_device_is_written_in_place_and_never_removed(void)
+{
+    uint8_t *rgb = test_card(64, 64);
+    arbor_err e;
+    struct stat st;
+    TEST_ASSERT_TRUE_MESSAGE(arbor_png_write_file("/dev/null", rgb, 64, 64, &e), e.msg);
+    TEST_ASSERT_EQUAL_INT(0, stat("/dev/null", &st));
+    TEST_ASSERT_TRUE(S_ISCHR(st.st_mode));
+    if (stat("/dev/full", &st) == 0) {
+        TEST_ASSERT_FALSE(arbor_png_write_file("/dev/full", rgb, 64, 64, &e));
+        TEST_ASSERT_EQUAL_INT(ARBOR_ERR_IO, e.status);
+        TEST_ASSERT_NOT_NULL(strstr(e.msg, "/dev/full: cannot write"));
+        TEST_ASSERT_EQUAL_INT(0, stat("/dev/full", &st));
+        TEST_ASSERT_TRUE(S_ISCHR(st.st_mode));
+    }
+    free(rgb);
+}
+
+static void test_replacing_keeps_permissions_and_links(void)
+{
+    make_scratch();
+    uint8_t *rgb = test_card(8, 8);
+    arbor_err e;
+    struct stat st;
+    mode_t old_mask = umask(022);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_png_write_file(in_scratch("new.png"), rgb, 8, 8, &e), e.msg);
+    TEST_ASSERT_EQUAL_INT(0, stat(in_scratch("new.png"), &st));
+    TEST_ASSERT_EQUAL_INT(0644, st.st_mode & 07777);
+    umask(old_mask);
+
+    write_text_file(in_scratch("old.png"), "old");
+    TEST_ASSERT_EQUAL_INT(0, chmod(in_scratch("old.png"), 0640));
+    TEST_ASSERT_TRUE_MESSAGE(arbor_png_write_file(in_scratch("old.png"), rgb, 8, 8, &e), e.msg);
+    assert_is_png(in_scratch("old.png"));
+    TEST_ASSERT_EQUAL_INT(0, stat(in_scratch("old.png"), &st));
+    TEST_ASSERT_EQUAL_INT(0640, st.st_mode & 07777);
+
+    char target[128];
+    snprintf(target, sizeof target, "%s", in_scratch("target.png"));
+    write_text_file(target, "old");
+    TEST_ASSERT_EQUAL_INT(0, symlink("target.png", in_scratch("link.png")));
+    TEST_ASSERT_TRUE_MESSAGE(arbor_png_write_file(in_scratch("link.png"), rgb, 8, 8, &e), e.msg);
+    TEST_ASSERT_EQUAL_INT(0, lstat(in_scratch("link.png"), &st));
+    TEST_ASSERT_TRUE(S_ISLNK(st.st_mode));
+    assert_is_png(target);
+    TEST_ASSERT_EQUAL_INT(4, scratch_entries()); /* no temporary file left */
+    free(rgb);
+    const char *names[] = {"new.png", "old.png", "target.png", "link.png"};
+    remove_scratch(names, 4);
+}
+
 int main(void)
 {
     UNITY_BEGIN();
     RUN_TEST(test_memory_round_trip);
     RUN_TEST(test_file_round_trip_and_one_pixel);
     RUN_TEST(test_errors_are_reported_not_printed);
+    RUN_TEST(test_a_failed_write_leaves_what_was_there);
+    RUN_TEST(test_a_device_is_written_in_place_and_never_removed);
+    RUN_TEST(test_replacing_keeps_permissions_and_links);
     return UNITY_END();
 }
