@@ -1,8 +1,9 @@
 /*
  * loader.h - private to the model loaders (load.c, textio.c, obj.c, mtl.c,
- * ply.c): reading a whole file into memory, a cursor that walks text line by
- * line with the number readers every format shares, and the table of material
- * names an OBJ and its MTL libraries fill together.
+ * ply.c; procgen.c's OBJ writer shares the I/O error message): reading a
+ * whole file into memory, a cursor that walks text line by line with the
+ * number readers every format shares, and the table of material names an
+ * OBJ and its MTL libraries fill together.
  *
  * Buffers handed out by loader_read_file belong to the caller (free()).
  * Everything else here borrows: a cursor points into text it does not own,
@@ -23,6 +24,10 @@
  * gzip data that is truncated or corrupt, or more than max_bytes of file or
  * of decompressed data, is an ARBOR_ERR_IO error. */
 bool loader_read_file(const char *path, bool gz, size_t max_bytes, char **data, size_t *len, arbor_err *e);
+
+/* Fails with ARBOR_ERR_IO and "PATH: WHAT: reason" for errno value err
+ * (strerror_r: other threads may be formatting errors too). */
+bool loader_fail_errno(arbor_err *e, const char *path, const char *what, int err);
 
 /* Checks that the mesh has triangles and finishes it (arbor_mesh_finish). On
  * failure, or when ok is false (the parser already failed), frees the mesh,

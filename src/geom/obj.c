@@ -8,7 +8,10 @@
  * the end of the list so far), usemtl, mtllib. o, g, s and every other
  * statement are skipped.
  */
+#define _XOPEN_SOURCE 700 /* realpath, beyond the build's _POSIX_C_SOURCE */
+#include <errno.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "arbor/load.h"
@@ -26,6 +29,7 @@ typedef struct {
 typedef struct {
     text_cursor c;
     const char *dir; /* folder for mtllib paths; NULL: libraries not loaded */
+    char *real_dir;  /* its real path once resolved (malloc'd), for containment */
     arbor_mesh *m;
     material_table mats;
     uint32_t ntexcoords, nnormals;
@@ -173,26 +177,23 @@ static bool use_material(obj_reader *r, arbor_err *e)
     return material_table_add(&r->mats, name, &r->mat, e);
 }
 
-/* A relative path that stays inside its folder: no leading '/', and no ".."
- * climbing above where it starts ("a/../b" is fine, "a/../../b" is not). */
-static bool path_stays_inside(const char *path, size_t len)
+/* True when the real path `real` lies inside the real folder `dir`. */
+static bool real_path_inside(const char *real, const char *dir)
 {
-    if (len == 0 || path[0] == '/' || path[0] == '\\')
-        return false;
-    long depth = 0;
-    for (size_t i = 0; i < len;) {
-        size_t j = i;
-        while (j < len && path[j] != '/' && path[j] != '\\')
-            j++;
-        if (j - i == 2 && path[i] == '.' && path[i + 1] == '.')
-            depth--;
-        else if (!(j - i == 0 || (j - i == 1 && path[i] == '.')))
-            depth++;
-        if (depth < 0)
-            return false;
-        i = j + 1;
-    }
-    return true;
+    size_t n = strlen(dir);
+    if (n == 1 && dir[0] == '/')
+        return real[0] == '/';
+    return strncmp(real, dir, n) == 0 && real[n] == '/';
+}
+
+/* The model folder's real path, resolved at the first mtllib; NULL (and a
+ * warning) when it cannot be. */
+static const char *real_dir(obj_reader *r)
+{
+    if (r->real_dir == NULL && (r->real_dir = realpath(r->dir, NULL)) == NULL)
+        arbor_mesh_warn(r->m, "%s:%u: the model's folder '%s' cannot be resolved; material libraries not loaded",
+                        r->c.name, r->c.line, r->dir);
+    return r->real_dir;
 }
 
 /* True when the library (w, n) was loaded before; otherwise remembers it
@@ -215,22 +216,36 @@ static bool seen_library(obj_reader *r, const char *w, size_t n)
 
 /* Missing or unreadable libraries (and ones outside the model's folder) are
  * warnings: the model still loads, with default materials. A library that
- * exists but is malformed fails the load like the OBJ itself would. */
+ * exists but is malformed fails the load like the OBJ itself would.
+ * "Outside" is decided on real paths, with every symbolic link and ".."
+ * resolved, so neither "../x.mtl" nor a link inside the folder that points
+ * out of it can make the loader read a file elsewhere. */
 static bool load_library(obj_reader *r, const char *w, size_t n, arbor_err *e)
 {
-    if (!path_stays_inside(w, n)) {
-        arbor_mesh_warn(r->m, "%s:%u: material library '%.*s' is outside the model's folder; not loaded", r->c.name,
-                        r->c.line, text_shown(n), w);
-        return true;
-    }
     char path[4096];
     if (strlen(r->dir) + 1 + n >= sizeof path) {
         arbor_mesh_warn(r->m, "%s:%u: material library path too long; not loaded", r->c.name, r->c.line);
         return true;
     }
     snprintf(path, sizeof path, "%s/%.*s", r->dir, (int)n, w);
+    const char *dir = real_dir(r);
+    if (dir == NULL)
+        return true;
+    char *real = realpath(path, NULL);
     arbor_err err;
-    if (mtl_load(&r->mats, path, &err))
+    bool ok;
+    if (real == NULL) {
+        ok = loader_fail_errno(&err, path, "cannot open", errno);
+    } else if (!real_path_inside(real, dir)) {
+        arbor_mesh_warn(r->m, "%s:%u: material library '%.*s' is outside the model's folder; not loaded", r->c.name,
+                        r->c.line, text_shown(n), w);
+        free(real);
+        return true;
+    } else {
+        ok = mtl_load(&r->mats, real, &err);
+    }
+    free(real);
+    if (ok)
         return true;
     if (err.status != ARBOR_ERR_IO) {
         if (e != NULL)
@@ -290,5 +305,6 @@ bool arbor_load_obj_text(const char *text, size_t len, const char *name, const c
         text_next_line(&r.c);
     }
     material_table_free(&r.mats);
+    free(r.real_dir);
     return loader_finish(ok, m, name, e);
 }

@@ -17,6 +17,7 @@
 #include <string.h>
 
 #include "arbor/procgen.h"
+#include "loader.h"
 
 /* ---- the builder: welded vertices, quads, face grids, boxes ---- */
 
@@ -660,21 +661,11 @@ bool arbor_obj_mtl_path(const char *path, char *buf, size_t size)
     return written >= 0 && (size_t)written < size;
 }
 
-/* "cannot WHAT PATH: reason" for errno value err; strerror_r, not strerror,
- * whose buffer other threads (a daemon's) may overwrite. */
-static bool fail_errno(arbor_err *e, const char *what, const char *path, int err)
-{
-    char reason[128];
-    if (strerror_r(err, reason, sizeof reason) != 0)
-        snprintf(reason, sizeof reason, "error %d", err);
-    return arbor_fail(e, ARBOR_ERR_IO, "cannot %s %s: %s", what, path, reason);
-}
-
 static FILE *open_for_writing(const char *path, arbor_err *e)
 {
     FILE *f = fopen(path, "w");
     if (f == NULL)
-        fail_errno(e, "create", path, errno);
+        loader_fail_errno(e, path, "cannot create", errno);
     return f;
 }
 
@@ -689,7 +680,7 @@ static bool close_written(FILE *f, const char *path, arbor_err *e)
         saved = errno;
     }
     if (failed)
-        return fail_errno(e, "write", path, saved);
+        return loader_fail_errno(e, path, "cannot write", saved);
     return true;
 }
 

@@ -383,6 +383,34 @@ static void test_mtllib_outside_the_models_folder_is_refused(void)
     arbor_mesh_free(&m);
 }
 
+/* Containment is decided on real paths: a symbolic link inside the folder,
+ * to a file or to a folder outside it, does not lead out; one that stays
+ * inside is followed. */
+static void test_mtllib_symlinks_cannot_leave_the_models_folder(void)
+{
+    make_dir("models");
+    write_text("evil.mtl", "newmtl evil\nKd 1 0 0\n");
+    write_text("models/ok.mtl", "newmtl ok\nKd 0 0 1\n");
+    char link[256];
+    tmp_path(link, sizeof link, "models/link.mtl");
+    TEST_ASSERT_EQUAL_INT(0, symlink("../evil.mtl", link));
+    tmp_path(link, sizeof link, "models/up");
+    TEST_ASSERT_EQUAL_INT(0, symlink("..", link));
+    tmp_path(link, sizeof link, "models/alias.mtl");
+    TEST_ASSERT_EQUAL_INT(0, symlink("ok.mtl", link));
+    char obj[512];
+    snprintf(obj, sizeof obj, "mtllib link.mtl up/evil.mtl\nmtllib alias.mtl\n%s"
+             "usemtl evil\nf 1 2 3\nusemtl ok\nf 1 2 3\n", cube_faces);
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(arbor_load_model(write_text("models/model.obj", obj), &m, &e), e.msg);
+    TEST_ASSERT_TRUE(has_warning(&m, "'link.mtl' is outside the model's folder"));
+    TEST_ASSERT_TRUE(has_warning(&m, "'up/evil.mtl' is outside the model's folder"));
+    TEST_ASSERT_EQUAL_FLOAT(0.7f, material(&m, "evil")->kd.x);
+    assert_vec(0, 0, 1, material(&m, "ok")->kd);
+    arbor_mesh_free(&m);
+}
+
 static void test_malformed_mtl_fails_with_its_line(void)
 {
     write_text("bad.mtl", "newmtl x\nKd 1 0 0\nKs 1 oops 1\n");
@@ -1094,6 +1122,7 @@ int main(void)
     RUN_TEST(test_several_libraries_on_one_mtllib_line);
     RUN_TEST(test_missing_mtl_is_a_warning);
     RUN_TEST(test_mtllib_outside_the_models_folder_is_refused);
+    RUN_TEST(test_mtllib_symlinks_cannot_leave_the_models_folder);
     RUN_TEST(test_malformed_mtl_fails_with_its_line);
     RUN_TEST(test_obj_gz_loads_like_the_plain_file);
     RUN_TEST(test_truncated_gz_is_an_error);
