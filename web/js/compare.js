@@ -1,0 +1,212 @@
+// compare.js - the compare view: an /api/bench job over the eight trees with a
+// progress bar, then one SVG bar chart per measure (eight bars each, ours),
+// with the study's figures beside ours for galleon and castle and Embree's
+// figure as a line where the daemon measured it.
+
+import * as api from './api.js';
+import { STUDY_SOURCE, studyFigure, hasStudy } from './study.js';
+import { fmt } from './panels.js';
+
+const TREES = [
+    ['bvh', 'spatial'], ['bvh', 'median'], ['bvh', 'mean'], ['bvh', 'sah'],
+    ['kd', 'spatial'], ['kd', 'median'], ['kd', 'mean'], ['kd', 'sah'],
+];
+
+export const CHARTS = [
+    { key: 'build_ms', title: 'Build time', unit: 'ms', log: true, better: 'lower', study: 1 },
+    { key: 'render_ms', title: 'Render time (the study\'s protocol frame)', unit: 'ms', log: true, better: 'lower', study: 4 },
+    { key: 'mean_leaf_depth', title: 'Mean leaf depth', unit: '', better: 'lower', study: 2 },
+    { key: 'mean_tris_per_leaf', title: 'Mean triangles per leaf', unit: '', better: 'lower', study: 3 },
+    { key: 'sah_cost', title: 'SAH cost', unit: '', better: 'lower' },
+    { key: 'primary_mrays', title: 'Primary rays', unit: 'Mrays/s', better: 'higher', embree: true },
+    { key: 'diffuse_mrays', title: 'Diffuse rays', unit: 'Mrays/s', better: 'higher', embree: true },
+    { key: 'shadow_mrays', title: 'Shadow rays', unit: 'Mrays/s', better: 'higher', embree: true },
+];
+
+const esc = (s) => String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
+const treeLabel = (a, b) => `${a === 'kd' ? 'k-d' : 'BVH'} ${b}`;
+const $ = (id) => document.getElementById(id);
+
+export class Compare {
+    constructor(app) {
+        this.app = app;
+        this.job = null;       // {id, model}
+        this.pollTimer = 0;
+        this.results = new Map(); // model -> rows
+        $('cmp-start').addEventListener('click', () => this.start());
+        $('cmp-cancel').addEventListener('click', () => this.cancel());
+    }
+
+    modelChanged() {
+        const m = this.app.state.model;
+        $('cmp-model').textContent = m || '—';
+        if (!this.job) this.draw(m, this.results.get(m) || null);
+    }
+
+    setError(text) {
+        const el = $('cmp-error');
+        el.hidden = !text;
+        el.textContent = text || '';
+    }
+
+    async start() {
+        const model = this.app.state.model;
+        if (!model || this.job) return;
+        this.setError('');
+        $('cmp-start').disabled = true;
+        $('cmp-progress-wrap').hidden = false;
+        $('cmp-progress').removeAttribute('value'); // indeterminate until the job reports
+        $('cmp-progress-text').textContent = 'starting…';
+        const body = {
+            model,
+            accel: ['bvh', 'kd'],
+            builder: ['spatial', 'median', 'mean', 'sah'],
+            runs: Number($('cmp-runs').value) || 1,
+        };
+        let j;
+        try {
+            j = await api.startBench(body);
+        } catch (e) {
+            this.fail(e.words || String(e));
+            return;
+        }
+        this.job = { id: j.id, model, start: performance.now() };
+        $('cmp-cancel').disabled = false;
+        this.poll();
+    }
+
+    async poll() {
+        const job = this.job;
+        if (!job) return;
+        let j;
+        try {
+            j = await api.getJob(job.id);
+        } catch (e) {
+            this.fail(e.words || String(e));
+            return;
+        }
+        if (this.job !== job) return;
+        const p = j.progress || {};
+        const done = Number(p.done) || 0, total = Number(p.total) || 0;
+        const bar = $('cmp-progress');
+        if (total > 0) { bar.max = total; bar.value = done; } else bar.removeAttribute('value');
+        const secs = ((j.elapsed_ms ?? performance.now() - job.start) / 1000).toFixed(1);
+        $('cmp-progress-text').textContent = `${j.state}: ${done} of ${total || '?'} steps, ${secs} s`;
+        if (j.rows && j.rows.length) this.draw(job.model, j.rows, true);
+        if (j.state === 'done') {
+            this.results.set(job.model, j.rows || []);
+            this.finish();
+            $('cmp-progress-text').textContent = `done: ${(j.rows || []).length} rows in ${secs} s`;
+            this.draw(job.model, j.rows || []);
+        } else if (j.state === 'failed' || j.state === 'cancelled') {
+            this.fail(j.state === 'failed'
+                ? `The benchmark of ${job.model} failed: ${j.error || 'the daemon gave no reason'}.`
+                : `The benchmark of ${job.model} was cancelled.`);
+        } else {
+            this.pollTimer = setTimeout(() => this.poll(), 400);
+        }
+    }
+
+    async cancel() {
+        if (!this.job) return;
+        try {
+            await api.cancelJob(this.job.id);
+        } catch (e) {
+            this.setError(e.words || String(e));
+        }
+    }
+
+    finish() {
+        clearTimeout(this.pollTimer);
+        this.job = null;
+        $('cmp-start').disabled = false;
+        $('cmp-cancel').disabled = true;
+    }
+
+    fail(text) {
+        this.finish();
+        $('cmp-progress-wrap').hidden = true;
+        this.setError(text);
+    }
+
+    /** Draws the eight charts for a model's bench rows (partial while running). */
+    draw(model, rows, partial = false) {
+        const el = $('charts');
+        if (!rows) {
+            el.innerHTML = '';
+            return;
+        }
+        const ours = (a, b) => rows.find((r) => r.accel === a && r.builder === b) || null;
+        const embree = rows.find((r) => r.accel === 'embree') || null;
+        const study = hasStudy(model);
+        el.innerHTML = CHARTS.map((c) => chartHTML(c, model, ours, embree, study, partial)).join('') +
+            (study ? `<p class="muted small chart-note">Study figures: ${esc(STUDY_SOURCE)}; measured on another machine
+              and ray tracer (no BVH-SAH there), shown for shape, not as a race. Times on a log scale.</p>` : '');
+    }
+}
+
+function chartHTML(c, model, ours, embree, study, partial) {
+    const withStudy = study && c.study;
+    const rows = TREES.map(([a, b]) => {
+        const r = ours(a, b);
+        const v = r && r[c.key] !== null && r[c.key] !== undefined ? Number(r[c.key]) : null;
+        const s = withStudy ? studyFigure(model, c.key, a, b) : null;
+        return { a, b, v, s };
+    });
+    const e = c.embree && embree && embree[c.key] !== null && embree[c.key] !== undefined ? Number(embree[c.key]) : null;
+    const values = rows.flatMap((r) => [r.v, r.s]).concat(e === null ? [] : [e]).filter((v) => v !== null && v > 0);
+    const W = 360, labelW = 84, valueW = 58, plotW = W - labelW - valueW;
+    const barH = withStudy ? 10 : 14, gap = withStudy ? 9 : 7, groupH = withStudy ? barH * 2 + 2 : barH;
+    const top = 6, H = top + TREES.length * (groupH + gap) + 16;
+    let scale;
+    if (c.log && values.length) {
+        const lo = Math.floor(Math.log10(Math.min(...values)) - 0.0001);
+        const hi = Math.ceil(Math.log10(Math.max(...values)) + 0.0001);
+        scale = (v) => (v > 0 ? Math.max(2, ((Math.log10(v) - lo) / Math.max(1, hi - lo)) * plotW) : 0);
+        scale.ticks = [];
+        for (let k = lo; k <= hi; k++) scale.ticks.push([10 ** k, ((k - lo) / Math.max(1, hi - lo)) * plotW]);
+    } else {
+        const max = values.length ? Math.max(...values) : 1;
+        scale = (v) => (v > 0 ? (v / max) * plotW : 0);
+        scale.ticks = [[0, 0], [max, plotW]];
+    }
+    let svg = '';
+    rows.forEach((r, i) => {
+        const y = top + i * (groupH + gap);
+        svg += `<text x="${labelW - 6}" y="${y + barH - 2}" text-anchor="end">${treeLabel(r.a, r.b)}</text>`;
+        const w = r.v === null ? 0 : scale(r.v);
+        svg += `<rect class="bar ours" x="${labelW}" y="${y}" width="${w.toFixed(1)}" height="${barH}" rx="2"
+                 data-accel="${r.a}" data-builder="${r.b}" data-value="${r.v ?? ''}"><title>ours, ${treeLabel(r.a, r.b)}: ${fmt(r.v)} ${c.unit}</title></rect>`;
+        svg += `<text class="value" x="${labelW + w + 4}" y="${y + barH - 2}">${r.v === null ? (partial ? '…' : '—') : fmt(r.v)}</text>`;
+        if (withStudy) {
+            const ys = y + barH + 2;
+            const ws = r.s === null ? 0 : scale(r.s);
+            if (r.s !== null) {
+                svg += `<rect class="bar study" x="${labelW}" y="${ys}" width="${ws.toFixed(1)}" height="${barH}" rx="2"
+                         data-accel="${r.a}" data-builder="${r.b}" data-value="${r.s}"><title>study, ${treeLabel(r.a, r.b)}: ${fmt(r.s)} ${c.unit}</title></rect>`;
+                svg += `<text class="value" x="${labelW + ws + 4}" y="${ys + barH - 2}">study ${fmt(r.s)}</text>`;
+            } else {
+                svg += `<text class="value" x="${labelW + 2}" y="${ys + barH - 2}">not in the study</text>`;
+            }
+        }
+    });
+    const axisY = top + TREES.length * (groupH + gap) - gap + 4;
+    svg += `<line class="axis" x1="${labelW}" y1="${top - 2}" x2="${labelW}" y2="${axisY}"/>`;
+    for (const [v, x] of scale.ticks) {
+        svg += `<text class="value" x="${labelW + x}" y="${axisY + 11}" text-anchor="${x === 0 ? 'start' : x >= plotW ? 'end' : 'middle'}">${fmt(v, v < 1 ? 2 : 0)}</text>`;
+    }
+    if (e !== null) {
+        const x = labelW + scale(e);
+        svg += `<line class="embree" x1="${x}" y1="${top - 2}" x2="${x}" y2="${axisY}"/>`;
+        svg += `<text class="embree-label" x="${Math.min(x + 3, W - 40)}" y="${top + 6}">Embree ${fmt(e)}</text>`;
+    }
+    const label = `${c.title} of the eight trees of ${model}${c.unit ? ', ' + c.unit : ''}, ${c.better} is better` +
+        (withStudy ? `, with the study's table ${c.study} beside` : '');
+    return `<figure class="card chart" data-metric="${c.key}">
+        <h3>${esc(c.title)}${c.unit ? ` <span class="muted small">(${esc(c.unit)}${c.log ? ', log scale' : ''}; ${c.better} is better)</span>` : ` <span class="muted small">(${c.better} is better)</span>`}</h3>
+        <svg viewBox="0 0 ${W} ${H}" role="img" aria-label="${esc(label)}">${svg}</svg>
+        <figcaption class="key"><span><i class="swatch" style="background:var(--ours)"></i>ours (arbord)</span>
+          ${withStudy ? `<span><i class="swatch" style="background:var(--study)"></i>study, table ${c.study}</span>` : ''}
+          ${e !== null ? '<span><i class="swatch" style="background:var(--embree)"></i>Embree</span>' : ''}</figcaption>
+      </figure>`;
+}

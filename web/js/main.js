@@ -1,0 +1,482 @@
+// main.js - the arbor viewer: state, URL, controls and panes.
+// State lives in `app.state`; the URL mirrors it (model, tree, mode, camera,
+// depth, ...) so a link reopens the same frame.
+
+import * as api from './api.js';
+import { protocolOrbit, clampPitch, requestCamera } from './camera.js';
+import { Pane } from './view.js';
+import { attachControls, MIN_DISTANCE, MAX_DISTANCE } from './controls.js';
+import { renderStats, renderLegend, renderRay } from './panels.js';
+import { Compare } from './compare.js';
+import { Uploader } from './upload.js';
+
+const ACCELS = ['bvh', 'kd'];
+const BUILDERS = ['spatial', 'median', 'mean', 'sah'];
+const MODES = ['shaded', 'normals', 'depth', 'ao', 'heat'];
+const SPPS = [1, 4, 9, 16, 64];
+const REST_MS = 180;
+
+const $ = (id) => document.getElementById(id);
+const num = (v) => (v === null || v === '' || v === undefined ? NaN : Number(v));
+
+function defaultState() {
+    return {
+        model: '',
+        accel: 'bvh',
+        builder: 'sah',
+        mode: 'shaded',
+        spp: 4,
+        res: [640, 480],
+        view: { ...protocolOrbit(), target: null },
+        boxes: { on: false, depth: 0, all: false, leaves: false },
+        split: { on: false, accel: 'kd', builder: 'sah' },
+        tab: 'view',
+    };
+}
+
+/** The state a URL's query asks for (unknown or bad values keep the defaults). */
+export function stateFromURL(search) {
+    const s = defaultState(), q = new URLSearchParams(search);
+    if (q.get('model')) s.model = q.get('model');
+    if (ACCELS.includes(q.get('accel'))) s.accel = q.get('accel');
+    if (BUILDERS.includes(q.get('builder'))) s.builder = q.get('builder');
+    if (MODES.includes(q.get('mode'))) s.mode = q.get('mode');
+    if (SPPS.includes(num(q.get('spp')))) s.spp = num(q.get('spp'));
+    const res = /^(\d{1,4})x(\d{1,4})$/.exec(q.get('res') || '');
+    if (res) s.res = [Math.max(16, Math.min(8192, +res[1])), Math.max(16, Math.min(8192, +res[2]))];
+    const v = s.view;
+    if (Number.isFinite(num(q.get('yaw')))) v.yaw = num(q.get('yaw'));
+    if (Number.isFinite(num(q.get('pitch')))) v.pitch = clampPitch(num(q.get('pitch')));
+    if (num(q.get('dist')) > 0) v.distance = Math.min(MAX_DISTANCE, Math.max(MIN_DISTANCE, num(q.get('dist'))));
+    if (num(q.get('fov')) >= 1 && num(q.get('fov')) <= 179) v.fov = num(q.get('fov'));
+    const t = (q.get('target') || '').split(',').map(Number);
+    if (t.length === 3 && t.every(Number.isFinite)) v.target = t;
+    if (q.has('depth') && Number.isInteger(num(q.get('depth'))) && num(q.get('depth')) >= 0) {
+        s.boxes.on = true;
+        s.boxes.depth = num(q.get('depth'));
+        s.boxes.all = q.get('boxes') === 'all';
+        s.boxes.leaves = q.get('boxes') === 'leaves';
+    }
+    const split = /^(bvh|kd):(spatial|median|mean|sah)$/.exec(q.get('split') || '');
+    if (split) s.split = { on: true, accel: split[1], builder: split[2] };
+    if (q.get('tab') === 'compare') s.tab = 'compare';
+    return s;
+}
+
+const r4 = (x) => String(Math.round(x * 1e4) / 1e4);
+
+export function stateToURL(s) {
+    const q = new URLSearchParams();
+    if (s.model) q.set('model', s.model);
+    q.set('accel', s.accel);
+    q.set('builder', s.builder);
+    q.set('mode', s.mode);
+    q.set('spp', String(s.spp));
+    q.set('res', `${s.res[0]}x${s.res[1]}`);
+    q.set('yaw', r4(s.view.yaw));
+    q.set('pitch', r4(s.view.pitch));
+    q.set('dist', r4(s.view.distance));
+    q.set('fov', r4(s.view.fov));
+    if (s.view.target) q.set('target', s.view.target.map((x) => String(Math.round(x * 1e6) / 1e6)).join(','));
+    if (s.boxes.on) {
+        q.set('depth', String(s.boxes.depth));
+        if (s.boxes.all) q.set('boxes', 'all');
+        if (s.boxes.leaves) q.set('boxes', 'leaves');
+    }
+    if (s.split.on) q.set('split', `${s.split.accel}:${s.split.builder}`);
+    if (s.tab === 'compare') q.set('tab', 'compare');
+    return `?${q.toString()}`;
+}
+
+class App {
+    constructor() {
+        this.state = stateFromURL(location.search);
+        // a URL camera is taken as it is; the view is pitch-clamped like the renderer's
+        this.models = new Map();
+        this.panes = [];
+        this.moving = false;
+        this.restTimer = 0;
+        this.urlTimer = 0;
+        this.rayInspect = null;
+        this.rayToken = 0;
+        this.drawQueued = false;
+        this.dark = matchMedia('(prefers-color-scheme: dark)');
+        this.dark.addEventListener('change', () => this.pumpAll());
+    }
+
+    model() {
+        return this.models.get(this.state.model) || null;
+    }
+
+    treeOf(i) {
+        return i === 0 ? { accel: this.state.accel, builder: this.state.builder }
+            : { accel: this.state.split.accel, builder: this.state.split.builder };
+    }
+
+    background() {
+        return this.dark.matches ? [0.1, 0.1, 0.12] : [0.86, 0.88, 0.91];
+    }
+
+    notify(text, kind = 'info', actions = []) {
+        const box = document.createElement('div');
+        box.className = `notice ${kind}`;
+        if (kind === 'error') box.setAttribute('role', 'alert');
+        const span = document.createElement('span');
+        span.textContent = text;
+        box.append(span);
+        for (const [label, fn] of actions) {
+            const b = document.createElement('button');
+            b.type = 'button';
+            b.textContent = label;
+            b.addEventListener('click', () => { box.remove(); fn(); });
+            box.append(b);
+        }
+        const close = document.createElement('button');
+        close.type = 'button';
+        close.textContent = 'Dismiss';
+        close.addEventListener('click', () => box.remove());
+        box.append(close);
+        $('notices').append(box);
+        if (kind !== 'error') setTimeout(() => box.remove(), 6000);
+        return box;
+    }
+
+    async start() {
+        this.bindControls();
+        this.compare = new Compare(this);
+        this.uploader = new Uploader(this);
+        this.rebuildPanes();
+        this.syncControls();
+        this.showTab(this.state.tab);
+        try {
+            const list = await api.listModels();
+            for (const m of list) this.models.set(m.name, m);
+        } catch (e) {
+            this.notify(e.words || String(e), 'error');
+        }
+        this.fillModels();
+        if (!this.models.has(this.state.model)) {
+            if (this.state.model) this.notify(`There is no model "${this.state.model}" on the daemon; showing another.`, 'error');
+            const names = [...this.models.keys()];
+            this.state.model = names.includes('cornell') ? 'cornell' : names[0] || '';
+        }
+        $('model').value = this.state.model;
+        this.syncControls();
+        this.pumpAll();
+        this.loadBoxes();
+        this.saveURL(true);
+        this.compare.modelChanged();
+    }
+
+    fillModels(select) {
+        const sel = $('model');
+        sel.innerHTML = '';
+        for (const m of [...this.models.values()].sort((a, b) => a.name.localeCompare(b.name))) {
+            const o = document.createElement('option');
+            o.value = m.name;
+            o.textContent = `${m.name} (${(m.triangles ?? 0).toLocaleString('en-US')} triangles)`;
+            sel.append(o);
+        }
+        if (!this.models.size) {
+            const o = document.createElement('option');
+            o.value = '';
+            o.textContent = 'no models loaded';
+            sel.append(o);
+        }
+        sel.value = select || this.state.model;
+    }
+
+    async refreshModel(name) {
+        try {
+            const m = await api.getModel(name);
+            this.models.set(m.name, m);
+        } catch { /* keep the old record */ }
+    }
+
+    async addModel(m) {
+        this.models.set(m.name, m);
+        this.fillModels(m.name);
+        this.setModel(m.name);
+    }
+
+    setModel(name) {
+        if (name === this.state.model) return;
+        this.state.model = name;
+        $('model').value = name;
+        this.state.view.target = null;
+        this.clearRay();
+        this.changed({ boxes: true });
+        this.compare.modelChanged();
+    }
+
+    rebuildPanes() {
+        const vp = $('viewport');
+        const want = this.state.split.on ? 2 : 1;
+        while (this.panes.length > want) this.panes.pop().dispose();
+        while (this.panes.length < want) {
+            const p = new Pane(this, this.panes.length);
+            this.panes.push(p);
+            vp.append(p.el);
+            attachControls(this, p.frame, p);
+        }
+        vp.classList.toggle('split', want > 1);
+        for (const p of this.panes) p.setAspect();
+    }
+
+    bindControls() {
+        const s = this.state;
+        $('model').addEventListener('change', (e) => this.setModel(e.target.value));
+        for (const [id, key] of [['accel', 'accel'], ['builder', 'builder'], ['mode', 'mode']]) {
+            $(id).addEventListener('change', (e) => {
+                s[key] = e.target.value;
+                if (key !== 'mode') this.clearRay();
+                this.changed({ boxes: key !== 'mode' });
+            });
+        }
+        $('spp').addEventListener('change', (e) => { s.spp = Number(e.target.value); this.changed(); });
+        $('res').addEventListener('change', (e) => {
+            s.res = e.target.value.split('x').map(Number);
+            this.clearRay();
+            for (const p of this.panes) p.setAspect();
+            this.changed();
+        });
+        $('reset').addEventListener('click', () => this.resetView());
+        $('save-png').addEventListener('click', () => this.savePNG());
+        $('boxes-on').addEventListener('change', (e) => { s.boxes.on = e.target.checked; this.changed({ boxes: true }); });
+        $('depth').addEventListener('input', (e) => {
+            s.boxes.depth = Number(e.target.value);
+            $('depth-out').textContent = e.target.value;
+            this.changed({ boxes: true, noFrame: true });
+        });
+        $('boxes-all').addEventListener('change', (e) => {
+            s.boxes.all = e.target.checked;
+            if (s.boxes.all) s.boxes.leaves = false;
+            this.changed({ boxes: true, noFrame: true });
+        });
+        $('boxes-leaves').addEventListener('change', (e) => {
+            s.boxes.leaves = e.target.checked;
+            if (s.boxes.leaves) s.boxes.all = false;
+            this.changed({ boxes: true, noFrame: true });
+        });
+        $('split-on').addEventListener('change', (e) => {
+            s.split.on = e.target.checked;
+            if (s.split.on && !new URLSearchParams(location.search).get('split')) {
+                // the natural comparison: the other kind, same builder
+                s.split.accel = s.accel === 'bvh' ? 'kd' : 'bvh';
+                s.split.builder = s.builder;
+            }
+            this.clearRay();
+            this.rebuildPanes();
+            this.changed({ boxes: true });
+        });
+        $('accel2').addEventListener('change', (e) => { s.split.accel = e.target.value; this.changed({ boxes: true }); });
+        $('builder2').addEventListener('change', (e) => { s.split.builder = e.target.value; this.changed({ boxes: true }); });
+        $('tab-view').addEventListener('click', () => this.showTab('view'));
+        $('tab-compare').addEventListener('click', () => this.showTab('compare'));
+        document.addEventListener('keydown', (e) => {
+            const t = e.target;
+            if (e.ctrlKey || e.metaKey || e.altKey) return;
+            if (t && (t.tagName === 'INPUT' || t.tagName === 'SELECT' || t.tagName === 'TEXTAREA' || t.isContentEditable)) return;
+            if ((e.key === 'r' || e.key === 'R') && this.state.tab === 'view') {
+                e.preventDefault();
+                this.resetView();
+            }
+        });
+        window.addEventListener('resize', () => this.scheduleDraw());
+    }
+
+    syncControls() {
+        const s = this.state;
+        $('accel').value = s.accel;
+        $('builder').value = s.builder;
+        $('mode').value = s.mode;
+        $('spp').value = String(s.spp);
+        const res = `${s.res[0]}x${s.res[1]}`;
+        if (![...$('res').options].some((o) => o.value === res)) {
+            const o = document.createElement('option');
+            o.value = res;
+            o.textContent = `${s.res[0]} × ${s.res[1]}`;
+            $('res').append(o);
+        }
+        $('res').value = res;
+        $('boxes-on').checked = s.boxes.on;
+        const depth = $('depth');
+        if (s.boxes.depth > Number(depth.max)) depth.max = String(s.boxes.depth);
+        depth.value = String(s.boxes.depth);
+        $('depth-out').textContent = String(s.boxes.depth);
+        for (const id of ['depth', 'boxes-all', 'boxes-leaves']) $(id).disabled = !s.boxes.on;
+        $('boxes-all').checked = s.boxes.all;
+        $('boxes-leaves').checked = s.boxes.leaves;
+        $('split-on').checked = s.split.on;
+        $('accel2').value = s.split.accel;
+        $('builder2').value = s.split.builder;
+        $('accel2').disabled = $('builder2').disabled = !s.split.on;
+    }
+
+    showTab(tab) {
+        this.state.tab = tab;
+        $('tab-view').setAttribute('aria-pressed', String(tab === 'view'));
+        $('tab-compare').setAttribute('aria-pressed', String(tab === 'compare'));
+        $('view-section').hidden = tab !== 'view';
+        $('compare-section').hidden = tab !== 'compare';
+        this.saveURL();
+        if (tab === 'view') this.scheduleDraw();
+    }
+
+    /** Something in the state changed: frames, boxes, URL, panels. */
+    changed(opts = {}) {
+        this.syncControls();
+        if (opts.boxes) this.loadBoxes();
+        if (!opts.noFrame) this.pumpAll();
+        this.scheduleDraw();
+        this.saveURL();
+    }
+
+    updateView(fn) {
+        fn(this.state.view);
+        this.moving = true;
+        clearTimeout(this.restTimer);
+        this.restTimer = setTimeout(() => {
+            this.moving = false;
+            this.pumpAll();
+            this.scheduleDraw();
+        }, REST_MS);
+        this.pumpAll();
+        this.saveURL();
+    }
+
+    resetView() {
+        const fov = this.state.view.fov;
+        this.state.view = { ...protocolOrbit(), fov, target: null };
+        this.updateView(() => {});
+    }
+
+    pumpAll() {
+        for (const p of this.panes) p.pump();
+    }
+
+    loadBoxes() {
+        for (const p of this.panes) p.loadBoxes();
+        this.boxesInfo();
+    }
+
+    boxesInfo() {
+        const el = $('boxes-info'), b = this.state.boxes;
+        if (!b.on) { el.textContent = ''; el.classList.remove('error'); return; }
+        const parts = [];
+        let err = false;
+        for (const p of this.panes) {
+            const name = `${p.tree().accel === 'kd' ? 'k-d' : 'BVH'} ${p.tree().builder}`;
+            if (p.building) parts.push(`${name}: building…`);
+            else if (!p.boxes) parts.push(`${name}: loading boxes…`);
+            else if (p.boxes.error) {
+                err = true;
+                parts.push(p.boxes.error.status === 404
+                    ? `${name}: the daemon does not serve this tree's boxes (404${p.boxes.error.daemonMessage ? ': ' + p.boxes.error.daemonMessage : ''}).`
+                    : `${name}: ${p.boxes.error.words}`);
+            } else {
+                const d = p.boxes.data;
+                const n = (d.boxes || []).length;
+                parts.push(`${name}: ${n.toLocaleString('en-US')} box${n === 1 ? '' : 'es'}` +
+                    (d.truncated ? ` drawn of ${Number(d.count).toLocaleString('en-US')} (capped at ${Number(d.max_boxes).toLocaleString('en-US')})` : '') +
+                    (b.leaves ? ' (leaves)' : b.all ? ' (all levels)' : ` at depth ${b.depth}`));
+            }
+        }
+        el.textContent = parts.join(' · ');
+        el.classList.toggle('error', err);
+    }
+
+    /** Pane frames or stats changed: redraw the panels on the next animation frame. */
+    panesChanged() {
+        this.scheduleDraw();
+    }
+
+    scheduleDraw() {
+        if (this.drawQueued) return;
+        this.drawQueued = true;
+        requestAnimationFrame(() => {
+            this.drawQueued = false;
+            this.drawPanels();
+        });
+    }
+
+    drawPanels() {
+        renderStats($('stats'), this);
+        renderLegend($('legend'), $('legend-bars'), this);
+        renderRay($('ray-panel'), this);
+        this.boxesInfo();
+        const st = this.panes[0] && this.panes[0].stats;
+        if (st && Number.isInteger(st.max_depth)) {
+            const depth = $('depth');
+            const max = Math.max(st.max_depth, this.state.boxes.depth);
+            if (Number(depth.max) !== max) depth.max = String(max);
+        }
+        for (const p of this.panes) p.drawOverlay();
+    }
+
+    saveURL(now = false) {
+        clearTimeout(this.urlTimer);
+        const write = () => {
+            const url = stateToURL(this.state);
+            if (url !== location.search) history.replaceState(null, '', url);
+        };
+        if (now) write(); else this.urlTimer = setTimeout(write, 150);
+    }
+
+    async inspect(pane, clientX, clientY) {
+        const px = pane.pixelAt(clientX, clientY);
+        const model = this.model();
+        if (!px || !model) return;
+        const shown = pane.shown;
+        const [W, H] = this.state.res;
+        const t = pane.tree();
+        const camera = shown ? shown.req.camera : requestCamera(model.bounds, this.state.view);
+        const req = { model: this.state.model, accel: t.accel, builder: t.builder, camera, width: W, height: H, x: px.x, y: px.y };
+        const token = ++this.rayToken;
+        for (const p of this.panes) p.ray = null;
+        this.rayInspect = { pane: pane.index, req, pending: true };
+        pane.ray = { req, data: null };
+        this.scheduleDraw();
+        const heatReq = {
+            model: req.model, accel: req.accel, builder: req.builder, mode: 'heat', camera,
+            width: W, height: H, spp: 1, region: { x: px.x, y: px.y, w: 1, h: 1 },
+        };
+        const [ray, heat] = await Promise.allSettled([api.traceRay(req), api.renderJSON(heatReq)]);
+        if (token !== this.rayToken) return;
+        const r = { pane: pane.index, req };
+        if (ray.status === 'fulfilled') r.data = ray.value;
+        else r.error = ray.reason;
+        if (heat.status === 'fulfilled') r.heat = heat.value;
+        else r.heatError = heat.reason.words || String(heat.reason);
+        this.rayInspect = r;
+        pane.ray = r.data ? { req, data: r.data } : null;
+        this.scheduleDraw();
+    }
+
+    clearRay() {
+        this.rayToken++;
+        this.rayInspect = null;
+        for (const p of this.panes) p.ray = null;
+        this.scheduleDraw();
+    }
+
+    savePNG() {
+        const p = this.panes[0];
+        if (!p || !p.lastFull) {
+            this.notify('There is no full frame to save yet; let the view rest a moment.', 'error');
+            return;
+        }
+        const r = p.lastFull.req;
+        const a = document.createElement('a');
+        a.href = URL.createObjectURL(p.lastFull.blob);
+        a.download = `${r.model}-${r.accel}-${r.builder}-${r.mode}-${r.width}x${r.height}.png`;
+        document.body.append(a);
+        a.click();
+        a.remove();
+        setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+    }
+}
+
+const app = new App();
+window.arbor = app; // for the browser console and the e2e tests
+app.start();

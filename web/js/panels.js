@@ -1,0 +1,147 @@
+// panels.js - the stats table, the heat legend and the ray inspector's list.
+
+const esc = (s) => String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
+
+export function fmt(v, digits = 2) {
+    if (v === null || v === undefined || Number.isNaN(v)) return '—';
+    if (typeof v !== 'number') return esc(v);
+    if (Number.isInteger(v)) return v.toLocaleString('en-US');
+    const a = Math.abs(v);
+    const d = a >= 1000 ? 0 : a >= 100 ? 1 : digits;
+    return v.toLocaleString('en-US', { minimumFractionDigits: d, maximumFractionDigits: d });
+}
+
+export function fmtBytes(b) {
+    if (b === null || b === undefined) return '—';
+    const units = ['B', 'KiB', 'MiB', 'GiB'];
+    let i = 0, v = b;
+    while (v >= 1024 && i < units.length - 1) { v /= 1024; i++; }
+    return `${v.toFixed(i ? 1 : 0)} ${units[i]}`;
+}
+
+const treeLabel = (t) => `${t.accel === 'kd' ? 'k-d' : 'BVH'} ${t.builder}`;
+
+/** The frame and tree statistics of every pane, one column each. */
+export function renderStats(el, app) {
+    const panes = app.panes;
+    const cols = panes.map((p) => {
+        const s = p.shown, st = p.stats && !p.stats.error ? p.stats : null;
+        return {
+            name: treeLabel(p.tree()),
+            ms: s ? s.renderMs : null,
+            mrays: s ? s.mrays : null,
+            fps: app.moving ? p.fps : null,
+            lastFps: p.fps,
+            size: s ? `${s.req.width}×${s.req.height}${s.quick ? ' quick' : ''}` : null,
+            st,
+            err: p.stats && p.stats.error,
+            building: !!p.building,
+        };
+    });
+    const row = (label, f, key) =>
+        `<tr${key ? ` data-key="${key}"` : ''}><th scope="row">${label}</th>${cols.map((c, i) => `<td data-pane="${i}">${f(c)}</td>`).join('')}</tr>`;
+    const stat = (k, digits) => (c) => (c.st ? fmt(c.st[k], digits) : c.building ? 'building…' : '—');
+    let html = '<div class="scroll"><table class="kv" id="stats-table">';
+    if (cols.length > 1) html += `<thead><tr><th></th>${cols.map((c) => `<th scope="col">${esc(c.name)}</th>`).join('')}</tr></thead>`;
+    html += '<tbody>';
+    html += row('Frame ms', (c) => fmt(c.ms), 'frame_ms');
+    html += row('Mrays/s', (c) => fmt(c.mrays), 'mrays');
+    html += row('FPS while orbiting', (c) => (c.fps !== null && c.fps !== undefined ? fmt(c.fps, 1)
+        : c.lastFps ? `<span class="muted">last ${fmt(c.lastFps, 1)}</span>` : '—'), 'fps');
+    html += row('Frame size', (c) => c.size || '—', 'size');
+    html += `<tr><th colspan="${cols.length + 1}" scope="rowgroup" class="group">Tree${cols.length === 1 ? ': ' + esc(cols[0].name) : ''}</th></tr>`;
+    html += row('Build ms', stat('build_ms'), 'build_ms');
+    html += row('Nodes', stat('nodes'), 'nodes');
+    html += row('Leaves', stat('leaves'), 'leaves');
+    html += row('Empty leaves', stat('empty_leaves'), 'empty_leaves');
+    html += row('Depth', stat('max_depth'), 'max_depth');
+    html += row('Mean leaf depth', stat('mean_leaf_depth'), 'mean_leaf_depth');
+    html += row('Mean triangles per leaf', stat('mean_tris_per_leaf'), 'mean_tris_per_leaf');
+    html += row('Duplication (refs / triangles)', (c) => (c.st && c.st.triangles
+        ? `${fmt(c.st.refs / c.st.triangles, 3)} <span class="muted small">(${fmt(c.st.refs)} / ${fmt(c.st.triangles)})</span>`
+        : stat('refs')(c)), 'duplication');
+    html += row('Bytes', (c) => (c.st ? fmtBytes(c.st.bytes) : stat('bytes')(c)), 'bytes');
+    html += row('SAH cost', stat('sah_cost'), 'sah_cost');
+    html += '</tbody></table></div>';
+    for (const c of cols) if (c.err) html += `<p class="error small">${esc(c.err)}</p>`;
+    el.innerHTML = html;
+}
+
+/** Heat legend: the renderer's colour ramp with numbers from X-Heat-Scale. */
+export function renderLegend(el, bars, app) {
+    const panes = app.panes.filter((p) => p.shown && p.shown.req.mode === 'heat');
+    if (app.state.mode !== 'heat' || panes.length === 0) {
+        el.hidden = app.state.mode !== 'heat';
+        if (app.state.mode === 'heat') bars.innerHTML = '<p class="muted small">waiting for a heat frame…</p>';
+        return;
+    }
+    el.hidden = false;
+    bars.innerHTML = panes.map((p) => {
+        const s = p.shown.heatScale;
+        const ticks = [0, 0.2, 0.4, 0.6, 0.8, 1].map((f) =>
+            `<span style="left:${f * 100}%">${s === null || s === undefined ? '?' : fmt(f * s, s < 10 ? 1 : 0)}${f === 1 ? '+' : ''}</span>`).join('');
+        return `<div class="legend-row" data-pane="${p.index}" data-heat-scale="${s ?? ''}">
+            ${app.panes.length > 1 ? `<div class="small">${esc(treeLabel(p.tree()))}${p.shown.quick ? ' (quick frame)' : ''}</div>` : ''}
+            <div class="legend-bar" role="img" aria-label="Colour scale from blue at 0 through cyan, green, yellow and red to white at ${s ?? 'unknown'} node steps plus triangle tests per pixel"></div>
+            <div class="legend-ticks">${ticks}</div>
+          </div>`;
+    }).join('') + '<p class="muted small">White: at or above the scale (the frame\'s 99th percentile). Blue: rays that cost nothing.</p>';
+}
+
+/** The inspected ray: hit, counts, heat at the pixel, and every step in visiting order. */
+export function renderRay(el, app) {
+    const r = app.rayInspect;
+    if (!r) {
+        el.innerHTML = '<p class="muted">Click a pixel of the frame to trace its primary ray through the tree.</p>';
+        return;
+    }
+    const where = `pixel (${r.req.x}, ${r.req.y}) of ${r.req.width}×${r.req.height}, ${esc(treeLabel(r.req))}`;
+    if (r.pending) {
+        el.innerHTML = `<p class="muted">Tracing the ray through ${where}…</p>`;
+        return;
+    }
+    if (r.error) {
+        el.innerHTML = `<p class="small">${where}</p><p class="error" role="alert">${esc(r.error.words || r.error.message)}</p>`;
+        return;
+    }
+    const d = r.data, steps = d.steps || [], counts = d.counts || {};
+    const leaves = steps.filter((s) => s.leaf).length;
+    const tested = steps.reduce((a, s) => a + (s.tris || 0), 0);
+    const v3 = (v) => (v ? `(${v.map((x) => fmt(x, 3)).join(', ')})` : '—');
+    let html = `<p class="small">${where}</p>`;
+    html += `<table class="kv" id="ray-counts" data-nodes="${counts.nodes ?? ''}" data-tris="${counts.tris ?? ''}"><tbody>`;
+    html += `<tr><th scope="row">Node steps</th><td class="ray-nodes">${fmt(counts.nodes)}</td></tr>`;
+    html += `<tr><th scope="row">Triangle tests</th><td class="ray-tris">${fmt(counts.tris)}</td></tr>`;
+    html += `<tr><th scope="row">Cost (steps + tests)</th><td>${fmt((counts.nodes ?? 0) + (counts.tris ?? 0))}</td></tr>`;
+    html += `<tr><th scope="row">Boxes visited / leaves</th><td>${fmt(steps.length)} / ${fmt(leaves)}</td></tr>`;
+    if (d.hit) {
+        html += `<tr><th scope="row">Hit t</th><td>${fmt(d.hit.t, 4)}</td></tr>`;
+        html += `<tr><th scope="row">Triangle</th><td>${fmt(d.hit.triangle)}</td></tr>`;
+        html += `<tr><th scope="row">Point</th><td>${v3(d.hit.point)}</td></tr>`;
+        html += `<tr><th scope="row">Normal</th><td>${v3(d.hit.normal)}</td></tr>`;
+    } else {
+        html += '<tr><th scope="row">Hit</th><td>none: the ray leaves the model</td></tr>';
+    }
+    if (r.heat) {
+        const h = r.heat;
+        const same = h.mean_nodes === counts.nodes && h.mean_tris === counts.tris;
+        html += `<tr id="ray-heat" data-nodes="${h.mean_nodes ?? ''}" data-tris="${h.mean_tris ?? ''}"><th scope="row">Heat mode at this pixel</th><td>${fmt(h.mean_nodes)} + ${fmt(h.mean_tris)}${same ? ' ✓ same' : ' ≠ differs'}</td></tr>`;
+    } else if (r.heatError) {
+        html += `<tr><th scope="row">Heat mode at this pixel</th><td class="error small">${esc(r.heatError)}</td></tr>`;
+    }
+    html += '</tbody></table>';
+    if (tested !== counts.tris && steps.length) {
+        html += `<p class="muted small">Triangles listed in the steps: ${fmt(tested)}.</p>`;
+    }
+    html += `<h3>Steps in visiting order</h3><div class="steps scroll"><table class="kv" id="ray-steps"><thead><tr><th>#</th><th>depth</th><th>node</th><th>triangles</th></tr></thead><tbody>`;
+    const show = steps.slice(0, 500);
+    show.forEach((s, i) => {
+        html += `<tr class="${s.leaf ? 'leaf' : 'inner'}"><td>${i + 1}</td><td>${fmt(s.depth)}</td><td>${s.leaf ? 'leaf' : 'inner'}</td><td>${s.leaf || s.tris ? fmt(s.tris) : ''}</td></tr>`;
+    });
+    html += '</tbody></table></div>';
+    if (steps.length > show.length) html += `<p class="muted small">First ${show.length} of ${steps.length} steps listed.</p>`;
+    html += '<p class="muted small">Drawn over the frame: inner boxes blue, leaves orange (pale when empty), the hit ringed.</p>';
+    html += '<div class="buttons"><button type="button" id="ray-clear">Clear</button></div>';
+    el.innerHTML = html;
+    el.querySelector('#ray-clear').addEventListener('click', () => app.clearRay());
+}

@@ -1,0 +1,359 @@
+// view.js - one frame pane: a canvas with arbord's frames, an overlay canvas
+// for tree boxes and the inspected ray, and the frame loop. While the view
+// moves the pane asks for quick frames (a fraction of the resolution, 1 spp);
+// at rest, for the full frame. Never more than one request in flight: a quick
+// frame is awaited, a full frame the view no longer wants is aborted and
+// superseded on the daemon by the next frame with the pane's `stream` key.
+
+import * as api from './api.js';
+import { cameraFromRequest, requestCamera, project } from './camera.js';
+import { drawBoxes, drawMarker, depthColour, projectedRect } from './overlay.js';
+
+const QUICK_PIXELS = 80000;
+
+/** Power-of-two divisor giving a quick frame of at most QUICK_PIXELS pixels (at least 2). */
+export function quickDivisor(w, h) {
+    let q = 2;
+    while ((w / q) * (h / q) > QUICK_PIXELS && q < 16) q *= 2;
+    return q;
+}
+
+let paneCounter = 0;
+
+export class Pane {
+    constructor(app, index) {
+        this.app = app;
+        this.index = index;
+        this.stream = `view-${index}-${Math.random().toString(36).slice(2, 10)}-${++paneCounter}`;
+        this.inflight = null;      // {key, quick, controller}
+        this.shown = null;         // {key, quick, req, cam (basis), heatScale, renderMs, mrays, bounds}
+        this.lastFull = null;      // {blob, req}
+        this.error = null;
+        this.stats = null;
+        this.statsKey = '';
+        this.building = null;      // {key, start, timer}
+        this.boxes = null;         // {key, data} | {key, error}
+        this.boxesLoading = '';
+        this.ray = null;           // {req, data, heat}
+        this.frameTimes = [];      // arrival times of quick frames while moving (FPS)
+        this.fps = null;
+        this.buildDoneKeys = new Set();
+        this.el = this.makeDom();
+    }
+
+    makeDom() {
+        const el = document.createElement('div');
+        el.className = 'pane';
+        el.innerHTML = `
+          <div class="pane-title"><strong class="tree-name"></strong><span class="frame-info"></span></div>
+          <div class="frame" tabindex="0" role="img" aria-describedby="hint">
+            <canvas class="image" width="640" height="480"></canvas>
+            <canvas class="overlay" width="640" height="480" aria-hidden="true"></canvas>
+            <span class="badge building" hidden></span>
+            <span class="badge quality" hidden></span>
+            <span class="badge error" role="alert" hidden></span>
+          </div>`;
+        this.frame = el.querySelector('.frame');
+        this.canvas = el.querySelector('canvas.image');
+        this.overlay = el.querySelector('canvas.overlay');
+        this.badgeBuilding = el.querySelector('.badge.building');
+        this.badgeQuality = el.querySelector('.badge.quality');
+        this.badgeError = el.querySelector('.badge.error');
+        this.titleName = el.querySelector('.tree-name');
+        this.titleInfo = el.querySelector('.frame-info');
+        this.canvas.dataset.pane = String(this.index);
+        new ResizeObserver(() => this.drawOverlay()).observe(this.frame);
+        return el;
+    }
+
+    tree() {
+        return this.app.treeOf(this.index);
+    }
+
+    treeKey() {
+        const t = this.tree();
+        return `${this.app.state.model}/${t.accel}/${t.builder}`;
+    }
+
+    /** The render request for the current view; quick: the moving-view frame. */
+    request(quick) {
+        const s = this.app.state, t = this.tree(), model = this.app.model();
+        const [W, H] = s.res;
+        const q = quick ? quickDivisor(W, H) : 1;
+        const req = {
+            model: s.model,
+            accel: t.accel,
+            builder: t.builder,
+            mode: s.mode,
+            width: Math.max(1, Math.round(W / q)),
+            height: Math.max(1, Math.round(H / q)),
+            spp: quick ? 1 : s.spp,
+            camera: requestCamera(model.bounds, s.view),
+            background: this.app.background(),
+        };
+        if (quick && s.mode === 'ao') req.ao_samples = 2;
+        return req;
+    }
+
+    setAspect() {
+        const [W, H] = this.app.state.res;
+        this.frame.style.aspectRatio = `${W} / ${H}`;
+    }
+
+    /** Asks for whatever frame the view wants now, if it can. */
+    pump() {
+        const app = this.app;
+        const model = app.model();
+        if (!model) return;
+        const t = this.tree();
+        this.titleName.textContent = `${t.accel === 'kd' ? 'k-d' : 'BVH'} ${t.builder} · ${app.state.mode}`;
+        this.frame.setAttribute('aria-label',
+            `Frame of ${app.state.model}, ${t.accel} ${t.builder} tree, ${app.state.mode} mode. ` +
+            'Drag to orbit, arrow keys orbit, plus and minus zoom, click to inspect a ray.');
+        this.ensureTree();
+        if (this.building) return;
+        const quick = app.moving;
+        const req = this.request(quick);
+        const key = JSON.stringify(req);
+        if (this.inflight) {
+            if (this.inflight.key === key) return;
+            if (!this.inflight.quick) {
+                // the full frame is no longer wanted: drop it; the next frame with
+                // this stream key supersedes it on the daemon
+                this.inflight.controller.abort();
+                this.inflight = null;
+            } else {
+                return; // a quick frame: wait for it, then ask again
+            }
+        }
+        if (this.shown && this.shown.key === key && !this.error) return;
+        if (this.error && this.error.key === key && !this.error.retry) return;
+        this.send(req, key, quick);
+    }
+
+    async send(req, key, quick) {
+        const controller = new AbortController();
+        const flight = { key, quick, controller };
+        this.inflight = flight;
+        this.badgeQuality.hidden = false;
+        this.badgeQuality.textContent = quick ? 'moving: quick frame' : `rendering ${req.width}×${req.height}, ${req.spp} spp…`;
+        const sent = performance.now();
+        let frame;
+        try {
+            frame = await api.renderFrame({ ...req, stream: this.stream }, { signal: controller.signal });
+        } catch (e) {
+            if (this.inflight === flight) this.inflight = null;
+            if (e.name === 'AbortError') return;
+            if (e.code === 'superseded') { this.pump(); return; }
+            this.showError(key, e);
+            if (e.code === 'busy') {
+                const wait = Math.min(5000, Math.max(200, (e.retryAfter || 0.5) * 1000));
+                this.error.retry = false;
+                setTimeout(() => { if (this.error && this.error.key === key) { this.error.retry = true; this.pump(); } }, wait);
+            }
+            this.app.panesChanged();
+            return;
+        }
+        if (this.inflight !== flight) return;
+        let bitmap;
+        try {
+            bitmap = await createImageBitmap(frame.blob);
+        } catch (e) {
+            this.inflight = null;
+            this.showError(key, new api.ApiError('Decoding the frame', 200, '', e.message));
+            return;
+        }
+        if (this.inflight !== flight) { bitmap.close(); return; }
+        this.inflight = null;
+        this.clearError();
+        const [W, H] = this.app.state.res;
+        if (this.canvas.width !== W || this.canvas.height !== H) {
+            this.canvas.width = W;
+            this.canvas.height = H;
+        }
+        const ctx = this.canvas.getContext('2d');
+        ctx.imageSmoothingEnabled = true;
+        ctx.imageSmoothingQuality = quick ? 'low' : 'high';
+        ctx.drawImage(bitmap, 0, 0, W, H);
+        bitmap.close();
+        const model = this.app.model();
+        this.shown = {
+            key, quick, req,
+            cam: cameraFromRequest(model.bounds, req.camera, W, H),
+            heatScale: frame.heatScale,
+            renderMs: frame.renderMs,
+            mrays: frame.mrays,
+            rays: frame.rays,
+            roundTripMs: performance.now() - sent,
+        };
+        this.canvas.dataset.frame = quick ? 'quick' : 'full';
+        this.canvas.dataset.camera = JSON.stringify(req.camera);
+        if (!quick) this.lastFull = { blob: frame.blob, req };
+        const now = performance.now();
+        if (quick) {
+            this.frameTimes.push(now);
+            while (this.frameTimes.length && now - this.frameTimes[0] > 1000) this.frameTimes.shift();
+            const span = this.frameTimes.length > 1 ? now - this.frameTimes[0] : 0;
+            this.fps = span > 0 ? ((this.frameTimes.length - 1) * 1000) / span : this.fps;
+        } else {
+            this.frameTimes = [];
+        }
+        this.badgeQuality.hidden = true;
+        this.titleInfo.textContent = `${req.width}×${req.height} · ${req.spp} spp${quick ? ' (quick)' : ''}`;
+        this.drawOverlay();
+        this.app.panesChanged();
+        this.pump();
+    }
+
+    showError(key, e) {
+        this.error = { key, e, retry: false };
+        this.badgeQuality.hidden = true;
+        this.badgeError.hidden = false;
+        this.badgeError.textContent = e.words || String(e.message || e);
+    }
+
+    clearError() {
+        this.error = null;
+        this.badgeError.hidden = true;
+        this.badgeError.textContent = '';
+    }
+
+    /** Builds the pane's tree (showing "building" with the elapsed time) and fetches its statistics. */
+    ensureTree() {
+        const app = this.app;
+        const key = this.treeKey();
+        if (this.statsKey === key || (this.building && this.building.key === key)) return;
+        const t = this.tree(), name = app.state.model;
+        const model = app.model();
+        const entry = (model.trees || []).find((e) => e.accel === t.accel && e.builder === t.builder);
+        const ready = entry && entry.state === 'ready';
+        this.statsKey = key;
+        this.stats = null;
+        this.boxes = null;
+        if (ready || this.buildDoneKeys.has(key)) {
+            api.treeStats(name, t.accel, t.builder).then((s) => {
+                if (this.statsKey === key) { this.stats = s; app.panesChanged(); }
+            }, (e) => {
+                if (this.statsKey === key) { this.stats = { error: e.words }; app.panesChanged(); }
+            });
+            app.panesChanged();
+            return;
+        }
+        const start = performance.now();
+        const building = { key, start, timer: 0 };
+        this.building = building;
+        const tick = () => {
+            const s = ((performance.now() - start) / 1000).toFixed(1);
+            this.badgeBuilding.textContent = `building ${t.accel === 'kd' ? 'k-d' : 'BVH'} ${t.builder} tree of ${name}… ${s} s`;
+        };
+        tick();
+        this.badgeBuilding.hidden = false;
+        building.timer = setInterval(tick, 100);
+        app.panesChanged();
+        const finish = () => {
+            clearInterval(building.timer);
+            if (this.building === building) {
+                this.building = null;
+                this.badgeBuilding.hidden = true;
+            }
+        };
+        api.buildTree(name, t.accel, t.builder).then((s) => {
+            this.buildDoneKeys.add(key);
+            if (this.statsKey === key) this.stats = s;
+            app.refreshModel(name);
+        }, (e) => {
+            if (this.statsKey === key) this.stats = { error: e.words };
+            if (e.status === 404 || e.status === 405) {
+                // no tree endpoint: a frame builds the tree itself
+                this.buildDoneKeys.add(key);
+            } else {
+                app.notify(e.words, 'error');
+            }
+        }).finally(() => {
+            finish();
+            app.panesChanged();
+            this.pump();
+            app.loadBoxes();
+        });
+    }
+
+    /** Loads the boxes of the pane's tree for the app's box settings. */
+    loadBoxes() {
+        const app = this.app, b = app.state.boxes;
+        if (!b.on || !app.model()) {
+            this.boxes = null;
+            this.drawOverlay();
+            return;
+        }
+        if (this.building) return; // after the build
+        const t = this.tree();
+        const kind = b.leaves ? 'leaves' : b.all ? 'all' : 'depth';
+        const key = `${this.treeKey()}/${b.depth}/${kind}`;
+        if ((this.boxes && this.boxes.key === key) || this.boxesLoading === key) return;
+        this.boxesLoading = key;
+        api.treeBoxes(app.state.model, t.accel, t.builder, b.depth, kind).then((data) => {
+            if (this.boxesLoading !== key) return;
+            this.boxes = { key, data };
+        }, (e) => {
+            if (this.boxesLoading !== key) return;
+            this.boxes = { key, error: e };
+        }).finally(() => {
+            if (this.boxesLoading === key) this.boxesLoading = '';
+            this.drawOverlay();
+            app.panesChanged();
+        });
+    }
+
+    /** Redraws boxes and the inspected ray with the camera of the frame shown. */
+    drawOverlay() {
+        const o = this.overlay;
+        const rect = this.frame.getBoundingClientRect();
+        const dpr = window.devicePixelRatio || 1;
+        const w = Math.max(1, Math.round(rect.width * dpr)), h = Math.max(1, Math.round(rect.height * dpr));
+        if (o.width !== w || o.height !== h) { o.width = w; o.height = h; }
+        const ctx = o.getContext('2d');
+        ctx.clearRect(0, 0, w, h);
+        const rects = [];
+        if (!this.shown) { o.dataset.rects = '[]'; return; }
+        const cam = this.shown.cam;
+        const sx = w / cam.width, sy = h / cam.height;
+        const lw = Math.max(1, dpr);
+        const b = this.app.state.boxes;
+        if (b.on && this.boxes && this.boxes.data) {
+            const list = this.boxes.data.boxes || [];
+            const alpha = list.length > 2000 ? 0.45 : list.length > 200 ? 0.7 : 0.95;
+            drawBoxes(ctx, cam, list, sx, sy, (box) => ({
+                colour: depthColour(box.depth ?? b.depth, alpha),
+                width: (box.depth === 0 ? 2 : 1.25) * lw,
+            }));
+            for (const box of list.slice(0, 50)) rects.push(projectedRect(cam, box));
+        }
+        if (this.ray && this.ray.data) {
+            const steps = this.ray.data.steps || [];
+            drawBoxes(ctx, cam, steps, sx, sy, (s) => (s.leaf
+                ? { colour: s.tris > 0 ? 'rgba(255,150,40,.95)' : 'rgba(255,220,120,.6)', width: 2 * lw }
+                : { colour: 'rgba(120,200,255,.55)', width: 1 * lw }));
+            const hit = this.ray.data.hit;
+            const p = hit ? project(cam, hit.point) : null;
+            const mark = p || [this.ray.req.x + 0.5, this.ray.req.y + 0.5];
+            drawMarker(ctx, mark, sx, sy, hit ? '#ff4fd8' : '#ffffff');
+        }
+        o.dataset.rects = JSON.stringify(rects.filter(Boolean).map((r) => r.map((v) => Math.round(v * 100) / 100)));
+    }
+
+    /** Frame pixel under a client point, or null outside. */
+    pixelAt(clientX, clientY) {
+        const rect = this.frame.getBoundingClientRect();
+        const [W, H] = this.app.state.res;
+        const x = Math.floor(((clientX - rect.left) / rect.width) * W);
+        const y = Math.floor(((clientY - rect.top) / rect.height) * H);
+        if (x < 0 || y < 0 || x >= W || y >= H) return null;
+        return { x, y };
+    }
+
+    dispose() {
+        if (this.inflight) this.inflight.controller.abort();
+        if (this.building) clearInterval(this.building.timer);
+        this.el.remove();
+    }
+}
