@@ -1,0 +1,76 @@
+"""Bench jobs: 202 + id, progress, rows of `arbord bench --format json`, cancel."""
+import json
+import time
+
+from harness import check, eq, expect_json, fail, main_daemon, our, run_cli, test
+
+JOB_KEYS = {"id", "model", "state", "progress", "elapsed_ms", "rows", "error"}
+
+
+def _cli_row():
+    rc, out, err = run_cli(["bench", "--model", our("sphere.obj"), "--accel", "bvh", "--builder", "sah",
+                            "--runs", "1", "--format", "json"])
+    check(rc == 0, "arbord bench failed (%d): %s" % (rc, err[-500:]))
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def _poll(d, jid, until, timeout):
+    seen = []
+    end = time.time() + timeout
+    while True:
+        j = expect_json(d.get("/api/jobs/%s" % jid))
+        seen.append(j)
+        if j["state"] in until:
+            return j, seen
+        if time.time() > end:
+            fail("job %s still %s after %d s: %r" % (jid, j["state"], timeout, j))
+        time.sleep(0.1)
+
+
+@test
+def test_bench_job_runs_to_done():
+    d = main_daemon()
+    r = d.post("/api/bench", {"model": "sphere", "accel": ["bvh", "kd"], "builder": ["sah", "median"], "runs": 1})
+    j = expect_json(r, 202)
+    check(isinstance(j.get("id"), str) and j["id"], "202 id %r (a string)" % j.get("id"))
+    eq(j.get("state"), "queued", "202 state")
+    eq(r.header("Location"), "/api/jobs/%s" % j["id"], "Location of the 202")
+    job, seen = _poll(d, j["id"], ("done", "failed", "cancelled"), 120)
+    eq(job["state"], "done", "final state (error %r)" % job.get("error"))
+    check(JOB_KEYS <= set(job), "job lacks %s" % (JOB_KEYS - set(job)))
+    eq(job["model"], "sphere", "job model")
+    eq(len(job["rows"]), 4, "rows: 2 accels x 2 builders")
+    eq(job["progress"], {"done": 4, "total": 4}, "progress when done")
+    check(isinstance(job["elapsed_ms"], (int, float)) and job["elapsed_ms"] > 0, "elapsed_ms %r" % job["elapsed_ms"])
+    dones = [s["progress"]["done"] for s in seen]
+    eq(dones, sorted(dones), "progress.done never goes back")
+    check(all(s["progress"]["total"] == 4 for s in seen), "progress.total not 4 throughout")
+    check(all(len(s["rows"]) == s["progress"]["done"] for s in seen), "rows so far != progress.done")
+    eq(sorted((x["accel"], x["builder"]) for x in job["rows"]),
+       [("bvh", "median"), ("bvh", "sah"), ("kd", "median"), ("kd", "sah")], "rows (accel, builder)")
+    cli = _cli_row()
+    row = [x for x in job["rows"] if (x["accel"], x["builder"]) == ("bvh", "sah")][0]
+    eq(set(row), set(cli), "bench row keys vs arbord bench --format json")
+    for k in ("triangles", "primary_hits", "sah_cost", "mean_leaf_depth", "mean_tris_per_leaf"):
+        eq(row[k], cli[k], "bvh:sah row %s vs arbord bench" % k)
+    check(abs(row["primary_tsum"] - cli["primary_tsum"]) <= 1e-6 * abs(cli["primary_tsum"]),
+          "primary_tsum %r vs arbord bench %r" % (row["primary_tsum"], cli["primary_tsum"]))
+
+
+@test
+def test_bench_job_cancel():
+    d = main_daemon()
+    j = expect_json(d.post("/api/bench", {"model": "menger", "accel": ["bvh", "kd"],
+                                          "builder": ["spatial", "median", "mean", "sah"], "runs": 20}), 202)
+    jid = j["id"]
+    _poll(d, jid, ("running", "done", "failed"), 30)
+    r = d.req("DELETE", "/api/jobs/%s" % jid)
+    jj = expect_json(r)
+    eq(jj.get("id"), jid, "DELETE /api/jobs/%s answers the job" % jid)
+    job, _ = _poll(d, jid, ("cancelled", "done", "failed"), 15)
+    eq(job["state"], "cancelled", "state after DELETE")
+    check(job["progress"]["done"] < job["progress"]["total"] == 8, "progress of the cancelled job %r" % job["progress"])
+    # the daemon is free again: a frame renders at once
+    t0 = time.time()
+    d.post("/api/render", {"model": "cornell", "width": 16, "height": 16})
+    check(time.time() - t0 < 5, "a frame after the cancel took %.1f s" % (time.time() - t0))

@@ -1,0 +1,204 @@
+"""Build once under concurrent first requests; a full queue answers 503 at once; stream keys; timeouts."""
+import os
+import threading
+import time
+
+from harness import (SHARED, Daemon, check, eq, expect_error, expect_json, expect_ok, fail, metric_value, our,
+                     parallel, shared, test)
+
+
+def builds(d, accel, builder):
+    samples, _ = d.metrics()
+    return metric_value(samples, "arbor_tree_builds_total", accel=accel, builder=builder) or 0
+
+
+def lazy_daemon():
+    """--prebuild none: every tree starts absent."""
+    ms = [our("menger.obj"), our("cornell.obj")]
+    bunny = os.path.join(SHARED, "bunny.obj")
+    if os.path.exists(bunny):
+        ms.append(bunny)
+    return shared("lazy", lambda: Daemon(ms, ["--threads", "2", "--prebuild", "none"], name="lazy daemon"))
+
+
+def _big():
+    d = lazy_daemon()
+    names = [m["name"] for m in expect_json(d.get("/api/models"))["models"]]
+    return d, ("bunny" if "bunny" in names else "menger")
+
+
+@test
+def test_build_once_20_concurrent_tree_posts():
+    d, model = _big()
+    eq(d.tree(model, "kd", "sah")["state"], "absent", "%s kd:sah before" % model)
+    eq(builds(d, "kd", "sah"), 0, "arbor_tree_builds_total{accel=kd,builder=sah} before")
+    res = parallel(20, lambda i: d.post("/api/models/%s/trees" % model,
+                                        {"accel": "kd", "builder": "sah", "wait": True}, timeout=120))
+    errs = [r for r in res if isinstance(r, Exception) or r.status != 200]
+    check(not errs, "of 20 concurrent POST trees, %d failed: %s" %
+          (len(errs), [e if isinstance(e, Exception) else e.short() for e in errs[:3]]))
+    stats = [r.json() for r in res]
+    keys = [(s["nodes"], s["leaves"], s["refs"], s["bytes"], s["build_ms"]) for s in stats]
+    eq(len(set(keys)), 1, "20 answers of one build (nodes, leaves, refs, bytes, build_ms) all equal")
+    eq(builds(d, "kd", "sah"), 1, "arbor_tree_builds_total{accel=\"kd\",builder=\"sah\"} after 20 concurrent requests")
+    eq(d.tree(model, "kd", "sah")["state"], "ready", "state after")
+
+
+@test
+def test_build_once_20_concurrent_first_renders():
+    d, model = _big()
+    eq(d.tree(model, "bvh", "median")["state"], "absent", "%s bvh:median before" % model)
+    res = parallel(20, lambda i: d.post("/api/render", {"model": model, "accel": "bvh", "builder": "median",
+                                                        "width": 32, "height": 32, "camera": {"yaw": 18 * i,
+                                                        "pitch": 10, "distance": 1.5, "fov": 45}}, timeout=120))
+    errs = [r for r in res if isinstance(r, Exception) or r.status != 200]
+    check(not errs, "of 20 concurrent first renders, %d failed: %s" %
+          (len(errs), [e if isinstance(e, Exception) else e.short() for e in errs[:3]]))
+    eq(builds(d, "bvh", "median"), 1, "arbor_tree_builds_total{accel=\"bvh\",builder=\"median\"} after 20 renders")
+    # and 20 concurrent stats requests naming an absent tree
+    res = parallel(20, lambda i: d.get("/api/stats?model=%s&accel=kd&builder=mean" % model, timeout=120))
+    check(all(not isinstance(r, Exception) and r.status == 200 for r in res), "concurrent /api/stats builds failed")
+    eq(builds(d, "kd", "mean"), 1, "arbor_tree_builds_total{accel=\"kd\",builder=\"mean\"} after 20 stats requests")
+
+
+def busy_daemon():
+    return shared("busy", lambda: Daemon([our("menger.obj"), our("cornell.obj")],
+                                         ["--threads", "1", "--queue", "1", "--max-pixels", "256M"],
+                                         name="busy daemon (--threads 1 --queue 1)"))
+
+
+BIG = {"model": "menger", "width": 1024, "height": 1024, "spp": 16, "format": "json",
+       "camera": {"yaw": 30, "pitch": 20, "distance": 1.2, "fov": 60}}
+
+
+@test
+def test_queue_full_503_at_once():
+    d = busy_daemon()
+    rejected0 = metric_value(d.metrics()[0], "arbor_frames_rejected_total") or 0
+
+    def one(i):
+        t0 = time.time()
+        r = d.post("/api/render", dict(BIG, seed=i + 1), timeout=120)
+        return r, time.time() - t0
+
+    res = parallel(10, one)
+    bad = [r for r in res if isinstance(r, Exception)]
+    check(not bad, "frames without an HTTP answer: %r" % bad[:3])
+    ok = [r for r, _ in res if r.status == 200]
+    busy = [(r, dt) for r, dt in res if r.status == 503]
+    other = [r.short() for r, _ in res if r.status not in (200, 503)]
+    check(not other, "answers other than 200/503: %s" % other)
+    check(len(busy) >= 7, "10 concurrent big frames on --threads 1 --queue 1: %d got 503, %d got 200 "
+          "(expected at most 2 admitted)" % (len(busy), len(ok)))
+    check(len(ok) >= 1, "no frame rendered")
+    for r, dt in busy:
+        expect_error(r, 503, "busy")
+        ra = r.header("Retry-After")
+        check(ra is not None and ra.strip().isdigit(), "503 busy with Retry-After %r" % ra)
+        check(dt < 1.5, "a 503 came after %.2f s, expected at once" % dt)
+    expect_ok(d.get("/healthz"))
+    expect_ok(d.get("/readyz"))
+    expect_ok(d.post("/api/render", {"model": "cornell", "width": 16, "height": 16}))
+    rejected = metric_value(d.metrics()[0], "arbor_frames_rejected_total") or 0
+    eq(rejected - rejected0, float(len(busy)), "arbor_frames_rejected_total increase")
+    q = expect_json(d.get("/api/stats"))["daemon"]["queue"]
+    eq((q["waiting"], q["rendering"], q["limit"]), (0, 0, 1), "queue after the burst")
+
+
+def _start(d, body, out, key):
+    def run():
+        t0 = time.time()
+        try:
+            out[key] = (d.post("/api/render", body, timeout=120), time.time())
+        except Exception as e:
+            out[key] = (e, time.time())
+        out[key + "_t0"] = t0
+    t = threading.Thread(target=run)
+    t.start()
+    return t
+
+
+def _wait_queue(d, rendering, waiting=0, timeout=20):
+    end = time.time() + timeout
+    while time.time() < end:
+        q = expect_json(d.get("/api/stats"))["daemon"]["queue"]
+        if q["rendering"] >= rendering and q["waiting"] >= waiting:
+            return
+        time.sleep(0.01)
+    fail("queue never reached rendering>=%d waiting>=%d" % (rendering, waiting))
+
+
+def stream_daemon():
+    return shared("stream", lambda: Daemon([our("menger.obj"), our("cornell.obj")],
+                                           ["--threads", "2", "--max-pixels", "256M"], name="stream daemon"))
+
+
+@test
+def test_stream_key_cancels_rendering_frame():
+    d = stream_daemon()
+    out = {}
+    heavy = dict(BIG, width=2048, height=2048, stream="orbit-1")
+    ta = _start(d, heavy, out, "a")
+    _wait_queue(d, 1)
+    check("a" not in out, "the heavy frame finished before the second was sent")
+    tb = _start(d, {"model": "cornell", "width": 32, "height": 32, "stream": "orbit-1"}, out, "b")
+    tb.join(60)
+    ta.join(60)
+    ra, ta_end = out["a"]
+    rb, tb_end = out["b"]
+    check(not isinstance(rb, Exception), "second frame: %r" % rb)
+    check(not isinstance(ra, Exception), "first frame got no HTTP answer: %r" % ra)
+    eq(rb.status, 200, "second frame of stream orbit-1: %s" % rb.short())
+    expect_error(ra, 409, "superseded")
+    check(ta_end - tb_end < 3, "the superseded frame answered %.1f s after the newer one" % (ta_end - tb_end))
+    samples, _ = d.metrics()
+    c = metric_value(samples, "arbor_frames_cancelled_total") or 0
+    check(c >= 1, "arbor_frames_cancelled_total is %r after a superseded frame" % c)
+
+
+@test
+def test_stream_key_cancels_queued_frame():
+    """--threads 1 --queue 2: A renders (no stream), B waits with stream s, C with stream s: B 409, C 200, A 200."""
+    d = Daemon([our("menger.obj"), our("cornell.obj")], ["--threads", "1", "--queue", "2", "--max-pixels", "256M"],
+               name="queued-stream daemon")
+    try:
+        _queued_stream(d)
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+def _queued_stream(d):
+    out = {}
+    ta = _start(d, dict(BIG, width=768, height=768), out, "a")
+    _wait_queue(d, 1)
+    tb = _start(d, {"model": "cornell", "width": 32, "height": 32, "stream": "s-queued"}, out, "b")
+    _wait_queue(d, 1, 1)
+    tc = _start(d, {"model": "cornell", "width": 32, "height": 32, "stream": "s-queued", "seed": 2}, out, "c")
+    for t in (ta, tb, tc):
+        t.join(60)
+    rb, rc, ra = out["b"][0], out["c"][0], out["a"][0]
+    for r, what in ((ra, "A"), (rb, "B"), (rc, "C")):
+        check(not isinstance(r, Exception), "frame %s: no HTTP answer %r" % (what, r))
+    expect_error(rb, 409, "superseded")
+    eq(rc.status, 200, "C (the newer frame of stream s-queued): %s" % rc.short())
+    eq(ra.status, 200, "A (no stream): %s" % ra.short())
+
+
+@test
+def test_frame_timeout_503():
+    d = Daemon([our("menger.obj")], ["--threads", "1", "--frame-timeout", "1", "--max-pixels", "256M"],
+               name="timeout daemon")
+    try:
+        t0 = time.time()
+        r = d.post("/api/render", dict(BIG, width=2048, height=2048), timeout=60)
+        dt = time.time() - t0
+        expect_error(r, 503, "timeout")
+        check(dt < 5, "a frame with --frame-timeout 1 answered after %.1f s" % dt)
+        expect_ok(d.post("/api/render", {"model": "menger", "width": 16, "height": 16}))
+        samples, _ = d.metrics()
+        c = metric_value(samples, "arbor_frames_cancelled_total") or 0
+        check(c >= 1, "arbor_frames_cancelled_total %r after a timeout" % c)
+        d.stop_clean()
+    finally:
+        d.cleanup()

@@ -1,0 +1,252 @@
+"""SIGTERM under load, bad flags and ports (exit 2, one line), access log; last: every daemon exits 0."""
+import json
+import os
+import signal
+import socket
+import subprocess
+import tempfile
+import threading
+import time
+
+import harness
+from harness import (ARBORD, Daemon, check, eq, expect_json, expect_ok, fail, free_port, our, shared_daemons,
+                     test)
+
+
+@test
+def test_sigterm_under_load_exits_0():
+    d = Daemon([our("menger.obj"), our("cornell.obj")], ["--threads", "2", "--max-pixels", "256M"],
+               name="sigterm daemon")
+    try:
+        heavy = {"model": "menger", "width": 1024, "height": 1024, "spp": 16, "format": "json",
+                 "camera": {"yaw": 30, "pitch": 20, "distance": 1.2, "fov": 60}}
+        results = {}
+        stop = threading.Event()
+        ready_seen = []
+
+        def frame(i):
+            try:
+                results[i] = d.post("/api/render", dict(heavy, seed=i + 1), timeout=60)
+            except Exception as e:
+                results[i] = e
+
+        def light():
+            while not stop.is_set():
+                try:
+                    d.post("/api/render", {"model": "cornell", "width": 32, "height": 32}, timeout=10)
+                except Exception:
+                    time.sleep(0.01)
+
+        def readyz():
+            while not stop.is_set():
+                try:
+                    r = d.get("/readyz", timeout=2)
+                    ready_seen.append((r.status, r.body[:100]))
+                except Exception:
+                    time.sleep(0.005)
+
+        ts = [threading.Thread(target=frame, args=(i,)) for i in range(4)]
+        ts += [threading.Thread(target=light) for _ in range(2)] + [threading.Thread(target=readyz)]
+        for t in ts:
+            t.start()
+        end = time.time() + 20
+        while True:
+            q = expect_json(d.get("/api/stats"))["daemon"]["queue"]
+            if q["rendering"] + q["waiting"] >= 4:
+                break
+            check(time.time() < end, "the 4 heavy frames were never admitted: %r" % q)
+            time.sleep(0.01)
+        t0 = time.time()
+        d.proc.send_signal(signal.SIGTERM)
+        try:
+            rc = d.proc.wait(40)
+        except subprocess.TimeoutExpired:
+            rc = None
+        took = time.time() - t0
+        stop.set()
+        for t in ts:
+            t.join(60)
+        err = d.stderr()
+        check(rc == 0, "SIGTERM under load: exit %s after %.1f s, expected 0; stderr: %s" % (rc, took, err[-1500:]))
+        check("Sanitizer" not in err, "sanitizer report after SIGTERM: %s" % err[-2000:])
+        bad = []
+        for i in range(4):
+            r = results.get(i)
+            if isinstance(r, Exception) or r is None:
+                bad.append("frame %d admitted before SIGTERM got no HTTP answer: %r" % (i, r))
+            elif r.status not in (200, 503):
+                bad.append("frame %d: %s" % (i, r.short()))
+        check(not bad, "; ".join(bad))
+        stopping = [s for s in ready_seen if s[0] == 503]
+        if stopping:
+            check(any(b"stopping" in b for _, b in stopping), "/readyz 503 during shutdown without \"stopping\": %r"
+                  % stopping[:2])
+        harness.log("readyz during shutdown:", stopping[:1] or "not observed")
+        s = socket.socket()
+        try:
+            check(s.connect_ex((d.host, d.port)) != 0, "port still open after exit")
+        finally:
+            s.close()
+    finally:
+        d.cleanup()
+
+
+@test
+def test_sigint_exits_0():
+    d = Daemon([our("cornell.obj")], ["--threads", "1"], name="sigint daemon")
+    try:
+        expect_ok(d.post("/api/render", {"model": "cornell", "width": 16, "height": 16}))
+        rc = d.stop(signal.SIGINT, timeout=20)
+        eq(rc, 0, "exit status after SIGINT (stderr %s)" % d.stderr()[-500:])
+    finally:
+        d.cleanup()
+
+
+def _bad(args, what, timeout=20):
+    t0 = time.time()
+    try:
+        p = subprocess.run([ARBORD, "serve"] + args, capture_output=True, timeout=timeout,
+                           stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired:
+        fail("arbord serve %s (%s) still running after %d s; expected exit 2" % (" ".join(args), what, timeout))
+    err = p.stderr.decode("utf-8", "replace")
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    check(p.returncode == 2, "arbord serve %s (%s): exit %d, expected 2; stderr %r" % (" ".join(args), what,
+                                                                                      p.returncode, err[:300]))
+    check(len(lines) == 1, "arbord serve %s (%s): %d lines on stderr, expected one: %r" % (" ".join(args), what,
+                                                                                           len(lines), err[:500]))
+    return time.time() - t0, lines[0]
+
+
+@test
+def test_bad_port_99999_exit_2():
+    _bad(["--port", "99999", "--models", os.path.join(harness.REPO, "models")], "port out of range")
+
+
+@test
+def test_port_in_use_exit_2():
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    s.listen(1)
+    port = s.getsockname()[1]
+    try:
+        dt, line = _bad(["--port", str(port), "--models", os.path.join(harness.REPO, "models")], "port in use")
+        check(str(port) in line or "use" in line.lower() or "bind" in line.lower(),
+              "the one line does not say what failed: %r" % line)
+    finally:
+        s.close()
+
+
+@test
+def test_port_in_use_fails_before_loading():
+    """The port is bound before any model is loaded: a big model does not delay the exit."""
+    big = os.path.join(harness.SHARED, "dragon.obj.gz")
+    if not os.path.exists(big):
+        harness.ignore("needs dragon.obj.gz in %s" % harness.SHARED)
+    md = tempfile.mkdtemp(prefix="arbor-http-")
+    os.symlink(big, os.path.join(md, "dragon.obj.gz"))
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    s.listen(1)
+    try:
+        dt, _ = _bad(["--port", str(s.getsockname()[1]), "--models", md, "--prebuild", "all"], "port in use, dragon")
+        check(dt < 1.0, "exit 2 came after %.1f s: the model was loaded first?" % dt)
+    finally:
+        s.close()
+        os.unlink(os.path.join(md, "dragon.obj.gz"))
+        os.rmdir(md)
+
+
+BAD_FLAGS = [
+    (["--port", "abc"], "port not a number"),
+    (["--port", "-1"], "negative port"),
+    (["--threads", "-1"], "negative threads"),
+    (["--queue", "x"], "queue not a number"),
+    (["--prebuild", "octree:sah"], "unknown prebuild accel"),
+    (["--prebuild", "bvh:fast"], "unknown prebuild builder"),
+    (["--log", "xml"], "unknown log format"),
+    (["--max-memory", "12X"], "bad size suffix"),
+    (["--max-pixels", "0"], "max-pixels 0"),
+    (["--frame-timeout", "-3"], "negative frame timeout"),
+    (["--no-such-flag"], "unknown flag"),
+    (["--port"], "missing value"),
+    (["--token-file", "/nonexistent/token"], "unreadable token file"),
+    (["--bind", "not-an-address"], "bad bind address"),
+    (["--bind", "203.0.113.77"], "address not on this machine"),
+]
+
+
+@test
+def test_bad_flags_exit_2_one_line():
+    errs = []
+    for args, what in BAD_FLAGS:
+        try:
+            _bad(args + ["--port", str(free_port())] if "--port" not in args else args, what)
+        except harness.Fail as e:
+            errs.append(str(e))
+    check(not errs, "; ".join(errs))
+
+
+@test
+def test_access_log_json():
+    d = Daemon([our("cornell.obj")], ["--threads", "1", "--log", "json"], name="json log daemon")
+    try:
+        r = d.post("/api/render", {"model": "cornell", "width": 16, "height": 16})
+        expect_ok(r)
+        rid = r.header("X-Request-Id")
+        r404 = d.get("/api/nope")
+        time.sleep(0.3)
+        d.stop_clean()
+        objs = []
+        for ln in d.stderr().splitlines():
+            try:
+                o = json.loads(ln)
+                if isinstance(o, dict):
+                    objs.append(o)
+            except ValueError:
+                pass
+        mine = [o for o in objs if rid in [str(v) for v in o.values()]]
+        check(len(mine) == 1, "--log json: %d JSON lines carry the request id %s; lines: %r" % (len(mine), rid, objs[:3]))
+        vals = [str(v) for v in mine[0].values()]
+        check("POST" in vals and "/api/render" in vals and "200" in vals,
+              "the access line lacks method/path/status: %r" % mine[0])
+        rid2 = r404.header("X-Request-Id")
+        check(any(rid2 in [str(v) for v in o.values()] and "404" in [str(v) for v in o.values()] for o in objs),
+              "no access line for the 404 %s" % rid2)
+    finally:
+        d.cleanup()
+
+
+@test
+def test_access_log_text():
+    d = Daemon([our("cornell.obj")], ["--threads", "1"], name="text log daemon")
+    try:
+        r = d.get("/api/models")
+        rid = r.header("X-Request-Id")
+        time.sleep(0.3)
+        lines = [ln for ln in d.stderr().splitlines() if rid in ln]
+        check(len(lines) == 1, "text access log: %d lines with request id %s: %r" % (len(lines), rid,
+                                                                                   d.stderr()[-600:]))
+        check("GET" in lines[0] and "/api/models" in lines[0] and "200" in lines[0],
+              "access line %r lacks method, path or status" % lines[0])
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+@test
+def test_shared_daemons_exit_cleanly():
+    """Every daemon the other tests shared: SIGTERM -> exit 0, no sanitizer report."""
+    errs = []
+    for key, d in list(shared_daemons().items()):
+        try:
+            if d.proc.poll() is not None:
+                errs.append("%s had already exited (%s): %s" % (d.name, d.proc.returncode, d.stderr()[-800:]))
+                continue
+            d.stop_clean()
+        except harness.Fail as e:
+            errs.append(str(e))
+        finally:
+            d.cleanup()
+            del shared_daemons()[key]
+    check(not errs, "; ".join(errs))

@@ -1,0 +1,127 @@
+"""--max-memory: least recently used unused trees are evicted; what cannot fit is refused with 507."""
+import gzip
+import re
+
+from harness import Daemon, check, eq, expect_error, expect_json, expect_ok, our, test
+
+_probe = {}
+BYTES = re.compile(r"\d{4,}|\d+(\.\d+)?\s*(bytes|B|KiB|MiB|GiB|KB|MB|GB)\b")
+TREES = [("bvh", "mean"), ("bvh", "spatial"), ("bvh", "sah")]  # A, B, C
+
+
+def probe():
+    """Model and tree bytes of menger and cornell as this daemon counts them."""
+    if _probe:
+        return _probe
+    d = Daemon([our("menger.obj"), our("cornell.obj")], ["--threads", "2", "--prebuild", "none"],
+               name="memory probe daemon")
+    try:
+        ms = {m["name"]: m for m in expect_json(d.get("/api/models"))["models"]}
+        _probe["models"] = ms["menger"]["bytes"] + ms["cornell"]["bytes"]
+        _probe["menger"] = ms["menger"]["bytes"]
+        for a, b in TREES + [("kd", "sah")]:
+            expect_json(d.post("/api/models/menger/trees", {"accel": a, "builder": b, "wait": True}))
+            _probe[(a, b)] = d.tree("menger", a, b)["bytes"]
+        mem = expect_json(d.get("/api/stats"))["daemon"]["memory"]
+        eq(mem["models"], _probe["models"], "probe: daemon.memory.models")
+        d.stop_clean()
+    finally:
+        d.cleanup()
+    return _probe
+
+
+def states(d):
+    return {(t["accel"], t["builder"]): t["state"] for t in d.model("menger")["trees"]}
+
+
+def build(d, a, b):
+    return d.post("/api/models/menger/trees", {"accel": a, "builder": b, "wait": True}, timeout=60)
+
+
+def grid_obj(n):
+    """An n x n grid of quads: (n+1)^2 vertices, 2 n^2 triangles."""
+    lines = ["v %d %d 0" % (i, j) for j in range(n + 1) for i in range(n + 1)]
+    for j in range(n):
+        for i in range(n):
+            a = j * (n + 1) + i + 1
+            lines.append("f %d %d %d %d" % (a, a + 1, a + n + 2, a + n + 1))
+    return ("\n".join(lines) + "\n").encode()
+
+
+@test
+def test_memory_budget_evicts_least_recently_used():
+    p = probe()
+    A, B, C = (p[t] for t in TREES)
+    budget = p["models"] + A + B + C // 2 + 64 * 1024  # fits two of the trees, not three
+    check(B + C <= budget - p["models"] and A + B + C > budget - p["models"], "probe sizes %r" % p)
+    d = Daemon([our("menger.obj"), our("cornell.obj")],
+               ["--threads", "2", "--prebuild", "none", "--max-memory", str(budget)], name="budget daemon")
+    try:
+        mem = expect_json(d.get("/api/stats"))["daemon"]["memory"]
+        eq(mem["limit"], budget, "daemon.memory.limit vs --max-memory")
+        ta, tb, tc = TREES
+        expect_ok(build(d, *ta))
+        expect_ok(build(d, *tb))
+        s = states(d)
+        eq((s[ta], s[tb]), ("ready", "ready"), "A and B after building them")
+        expect_ok(build(d, *tc))
+        s = states(d)
+        eq((s[ta], s[tb], s[tc]), ("absent", "ready", "ready"),
+           "states of A=%s:%s, B=%s:%s, C=%s:%s after building C (A least recently used, evicted)" % (ta + tb + tc))
+        mem = expect_json(d.get("/api/stats"))["daemon"]["memory"]
+        check(mem["models"] + mem["trees"] <= budget, "memory %r over the budget %d" % (mem, budget))
+        # use B, so that C becomes the least recently used
+        expect_ok(d.post("/api/render", {"model": "menger", "accel": tb[0], "builder": tb[1], "width": 16, "height": 16}))
+        expect_ok(build(d, *ta))
+        s = states(d)
+        eq((s[ta], s[tb], s[tc]), ("ready", "ready", "absent"),
+           "states after rendering with B and building A again (C least recently used, evicted)")
+        samples, _ = d.metrics()
+        mem = expect_json(d.get("/api/stats"))["daemon"]["memory"]
+        check(mem["models"] + mem["trees"] <= budget, "memory %r over the budget %d" % (mem, budget))
+
+        # an upload bigger than the whole budget: 507 naming the bytes; nothing loaded is lost
+        per_tri = p["menger"] / 36096.0
+        n = 8
+        while 2 * n * n * per_tri < 1.5 * budget:
+            n *= 2
+        before = expect_json(d.get("/api/models"))["models"]
+        big = gzip.compress(grid_obj(n), 1)
+        r = d.req("PUT", "/api/models/toobig", body=big, headers={"Content-Type": "application/octet-stream"},
+                  timeout=120)
+        e = expect_error(r, 507, "insufficient_memory")
+        check(BYTES.search(e["message"]), "507 message %r does not say how many bytes were needed" % e["message"])
+        expect_error(d.get("/api/models/toobig"), 404, "not_found")
+        after = expect_json(d.get("/api/models"))["models"]
+        eq([(m["name"], m["triangles"], m["version"]) for m in after],
+           [(m["name"], m["triangles"], m["version"]) for m in before], "models after the refused upload")
+        s = states(d)
+        eq((s[ta], s[tb]), ("ready", "ready"), "A and B after an upload that could never fit was refused")
+        expect_ok(d.post("/api/render", {"model": "menger", "width": 16, "height": 16}))
+        expect_ok(d.post("/api/render", {"model": "cornell", "width": 16, "height": 16}))
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+@test
+def test_memory_tree_that_cannot_fit_507():
+    p = probe()
+    C = p[("bvh", "sah")]
+    budget = p["models"] + C // 2
+    d = Daemon([our("menger.obj"), our("cornell.obj")],
+               ["--threads", "2", "--prebuild", "none", "--max-memory", str(budget)], name="tiny budget daemon")
+    try:
+        e = expect_error(build(d, "bvh", "sah"), 507, "insufficient_memory")
+        check(BYTES.search(e["message"]), "507 message %r does not say how many bytes were needed" % e["message"])
+        st = d.tree("menger", "bvh", "sah")["state"]
+        check(st in ("absent", "failed"), "bvh:sah state %r after a refused build" % st)
+        r = d.post("/api/render", {"model": "menger", "width": 16, "height": 16})
+        expect_error(r, 507, "insufficient_memory")
+        names = [m["name"] for m in expect_json(d.get("/api/models"))["models"]]
+        eq(names, ["cornell", "menger"], "models after the refusals")
+        expect_ok(d.post("/api/render", {"model": "cornell", "width": 16, "height": 16}))
+        expect_ok(d.get("/healthz"))
+        d.stop_clean()
+    finally:
+        d.cleanup()

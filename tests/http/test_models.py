@@ -1,0 +1,255 @@
+"""Uploads (PUT OBJ/PLY/gzip, multipart .obj + .mtl), 409 and replace, delete, while frames render."""
+import gzip
+import os
+import struct
+import threading
+import time
+
+from harness import (Daemon, check, eq, expect_error, expect_json, expect_ok, fail, limits_daemon, multipart,
+                     our, png_of, shared, test)
+
+CUBE_OBJ = b"""# a unit cube of quads: 8 vertices, 6 faces, 12 triangles
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 0 0 1
+v 1 0 1
+v 1 1 1
+v 0 1 1
+f 1 4 3 2
+f 5 6 7 8
+f 1 2 6 5
+f 2 3 7 6
+f 3 4 8 7
+f 4 1 5 8
+"""
+TETRA_OBJ = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+TETRA_PLY = b"""ply
+format ascii 1.0
+element vertex 4
+property float x
+property float y
+property float z
+element face 4
+property list uchar int vertex_indices
+end_header
+0 0 0
+1 0 0
+0 1 0
+0 0 1
+3 0 2 1
+3 0 1 3
+3 0 3 2
+3 1 2 3
+"""
+
+
+def tetra_ply_binary():
+    head = (b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+            b"property float z\nelement face 4\nproperty list uchar int vertex_indices\nend_header\n")
+    verts = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)]
+    faces = [(0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)]
+    body = b"".join(struct.pack("<3f", *v) for v in verts)
+    body += b"".join(struct.pack("<B3i", 3, *f) for f in faces)
+    return head + body
+
+
+def upload_daemon():
+    return shared("upload", lambda: Daemon([our("cornell.obj"), our("sphere.obj")],
+                                           ["--threads", "2", "--max-pixels", "64M"], copy=True,
+                                           name="upload daemon"))
+
+
+def put(d, name, data, query="", headers=None):
+    return d.req("PUT", "/api/models/%s%s" % (name, query), body=data,
+                 headers=headers or {"Content-Type": "application/octet-stream"})
+
+
+def _model_ok(j, name, tris, verts, d):
+    eq(j.get("name"), name, "uploaded MODEL name")
+    eq((j.get("triangles"), j.get("vertices")), (tris, verts), "uploaded %s triangles, vertices" % name)
+    check(os.path.exists(j["file"]), "uploaded file %r does not exist" % j["file"])
+    eq(os.path.dirname(os.path.realpath(j["file"])), os.path.realpath(d.models_dir),
+       "uploaded %s written to the first --models dir" % name)
+
+
+@test
+def test_upload_put_obj_then_render_and_list():
+    d = upload_daemon()
+    j = expect_json(put(d, "cube", CUBE_OBJ), 201)
+    _model_ok(j, "cube", 12, 8, d)
+    eq(j["bounds"], {"min": [0, 0, 0], "max": [1, 1, 1]}, "cube bounds")
+    names = [m["name"] for m in expect_json(d.get("/api/models"))["models"]]
+    check("cube" in names, "GET /api/models after the upload lacks cube: %s" % names)
+    w, h, _, _ = png_of(d.post("/api/render", {"model": "cube", "width": 24, "height": 16}))
+    eq((w, h), (24, 16), "frame of the uploaded model")
+
+
+@test
+def test_upload_conflict_without_replace_then_replace():
+    d = upload_daemon()
+    expect_json(put(d, "swap", TETRA_OBJ), 201)
+    e = expect_error(put(d, "swap", CUBE_OBJ), 409, "conflict")
+    check("swap" in e["message"], "409 message %r does not name the model" % e["message"])
+    eq(d.model("swap")["triangles"], 4, "swap triangles after the refused upload (unchanged)")
+    expect_error(put(d, "cornell", CUBE_OBJ), 409, "conflict")
+    eq(d.model("cornell")["triangles"], 36, "cornell triangles after a refused upload")
+    v1 = d.model("swap")["version"]
+    j = expect_json(put(d, "swap", CUBE_OBJ, "?replace=1"), 200)
+    eq(j["triangles"], 12, "swap triangles after ?replace=1")
+    check(j["version"] > v1, "version %r after replace, was %r" % (j["version"], v1))
+    eq(d.model("swap")["triangles"], 12, "GET swap after replace")
+    expect_ok(d.post("/api/render", {"model": "swap", "width": 8, "height": 8}))
+
+
+@test
+def test_upload_gzip_by_magic_and_content_encoding():
+    d = upload_daemon()
+    gz = gzip.compress(CUBE_OBJ)
+    j = expect_json(put(d, "cube-gz", gz), 201)
+    eq((j["triangles"], j["vertices"]), (12, 8), "gzip (by magic) upload counts")
+    j = expect_json(put(d, "cube-ce", gz, headers={"Content-Type": "application/octet-stream",
+                                                   "Content-Encoding": "gzip"}), 201)
+    eq((j["triangles"], j["vertices"]), (12, 8), "Content-Encoding: gzip upload counts")
+    expect_ok(d.post("/api/render", {"model": "cube-gz", "width": 8, "height": 8}))
+
+
+@test
+def test_upload_ply_ascii_and_binary():
+    d = upload_daemon()
+    j = expect_json(put(d, "tetra-ply", TETRA_PLY), 201)
+    eq((j["triangles"], j["vertices"]), (4, 4), "ascii PLY counts")
+    j = expect_json(put(d, "tetra-bply", tetra_ply_binary()), 201)
+    eq((j["triangles"], j["vertices"]), (4, 4), "binary PLY counts")
+    j = expect_json(put(d, "tetra-plygz", gzip.compress(TETRA_PLY)), 201)
+    eq((j["triangles"], j["vertices"]), (4, 4), "gzip'd PLY counts")
+
+
+@test
+def test_upload_multipart_obj_and_mtl():
+    d = upload_daemon()
+    obj = b"mtllib mp.mtl\nusemtl shiny_red\n" + TETRA_OBJ
+    mtl = b"newmtl shiny_red\nKd 0.9 0.1 0.1\nKs 0.5 0.5 0.5\n"
+    body, ctype = multipart([("model", "mp.obj", "model/obj", obj), ("mtl", "mp.mtl", "text/plain", mtl)])
+    r = d.req("POST", "/api/models/mp", body=body, headers={"Content-Type": ctype})
+    j = expect_json(r, 201)
+    eq((j["triangles"], j["vertices"]), (4, 4), "multipart upload counts")
+    check("shiny_red" in j["materials"], "multipart upload materials %r lack the .mtl's shiny_red" % j["materials"])
+    check(not any("mp.mtl" in w for w in j.get("warnings", [])), "warnings about the .mtl: %r" % j["warnings"])
+    # the .mtl part is read; the part order does not matter
+    body, ctype = multipart([("mtl", "mp2.mtl", "text/plain", mtl.replace(b"shiny_red", b"dull_blue")),
+                             ("model", "mp2.obj", "model/obj",
+                              b"mtllib mp2.mtl\nusemtl dull_blue\n" + TETRA_OBJ)])
+    j = expect_json(d.req("POST", "/api/models/mp2", body=body, headers={"Content-Type": ctype}), 201)
+    check("dull_blue" in j["materials"], "multipart (mtl first) materials %r lack dull_blue" % j["materials"])
+    expect_error(d.req("POST", "/api/models/mp", body=body, headers={"Content-Type": ctype}), 409, "conflict")
+
+
+@test
+def test_upload_multipart_without_model_part():
+    d = upload_daemon()
+    body, ctype = multipart([("mtl", "only.mtl", "text/plain", b"newmtl a\nKd 1 1 1\n")])
+    expect_error(d.req("POST", "/api/models/only", body=body, headers={"Content-Type": ctype}), 400, "bad_request")
+
+
+@test
+def test_upload_survives_restart():
+    """An upload is a file in the first --models dir: a daemon started on that dir loads it."""
+    d = upload_daemon()
+    expect_json(put(d, "keeper", CUBE_OBJ), 201)
+    d2 = Daemon(args=["--threads", "1", "--prebuild", "none"], models_dir=d.models_dir, name="restarted daemon")
+    try:
+        eq(d2.model("keeper")["triangles"], 12, "keeper triangles in a daemon started on the models dir")
+        d2.stop_clean()
+    finally:
+        d2.cleanup()
+
+
+@test
+def test_delete_model_then_404():
+    d = upload_daemon()
+    expect_json(put(d, "gone", TETRA_OBJ), 201)
+    j = expect_json(d.req("DELETE", "/api/models/gone"))
+    eq(j, {"deleted": "gone"}, "DELETE /api/models/gone")
+    expect_error(d.get("/api/models/gone"), 404, "not_found")
+    expect_error(d.post("/api/render", {"model": "gone", "width": 8, "height": 8}), 404, "not_found")
+    expect_error(d.req("DELETE", "/api/models/gone"), 404, "not_found")
+    names = [m["name"] for m in expect_json(d.get("/api/models"))["models"]]
+    check("gone" not in names, "deleted model still listed")
+    # the name is free again
+    expect_json(put(d, "gone", CUBE_OBJ), 201)
+
+
+HEAVY = {"width": 1536, "height": 1536, "spp": 16, "format": "json", "camera": {"yaw": 30, "pitch": 20, "distance": 1.2, "fov": 60}}
+
+
+def _while_rendering(d, name, action):
+    """Start a heavy frame of `name`, run action() once it renders; return (frame response, action result)."""
+    out = {}
+
+    def frame():
+        try:
+            out["r"] = d.post("/api/render", dict(HEAVY, model=name), timeout=120)
+        except Exception as e:
+            out["r"] = e
+
+    t = threading.Thread(target=frame)
+    t.start()
+    end = time.time() + 20
+    while True:
+        q = expect_json(d.get("/api/stats"))["daemon"]["queue"]
+        if q["rendering"] >= 1:
+            break
+        if "r" in out or time.time() > end:
+            break
+        time.sleep(0.01)
+    rendering = "r" not in out
+    res = action()
+    t.join(120)
+    check(not t.is_alive(), "the frame never answered")
+    r = out["r"]
+    if isinstance(r, Exception):
+        fail("the frame of %s got no HTTP answer: %r" % (name, r))
+    check(rendering, "the frame finished before the action (%s); make HEAVY heavier" % r.short())
+    return r, res
+
+
+@test
+def test_delete_while_frames_render():
+    d = upload_daemon()
+    with open(our("menger.obj"), "rb") as f:
+        expect_json(put(d, "heavy-del", f.read()), 201)
+    r, dl = _while_rendering(d, "heavy-del", lambda: d.req("DELETE", "/api/models/heavy-del"))
+    eq(dl.status, 200, "DELETE while a frame renders: %s" % dl.short())
+    if r.status == 200:
+        eq(r.json()["model"], "heavy-del", "the frame's answer")
+    else:
+        check(r.header("Content-Type", "").startswith("application/json") and "error" in r.json(),
+              "the frame on a deleted model answered %s" % r.short())
+    expect_error(d.get("/api/models/heavy-del"), 404, "not_found")
+    expect_error(d.post("/api/render", {"model": "heavy-del", "width": 8, "height": 8}), 404, "not_found")
+    expect_ok(d.get("/healthz"))
+    expect_ok(d.post("/api/render", {"model": "cornell", "width": 8, "height": 8}))
+
+
+@test
+def test_replace_while_frames_render():
+    d = upload_daemon()
+    with open(our("menger.obj"), "rb") as f:
+        expect_json(put(d, "heavy-rep", f.read()), 201)
+    r, rp = _while_rendering(d, "heavy-rep", lambda: put(d, "heavy-rep", CUBE_OBJ, "?replace=1"))
+    eq(rp.status, 200, "PUT ?replace=1 while a frame renders: %s" % rp.short())
+    eq(r.status, 200, "the frame rendering while its model was replaced: %s" % r.short())
+    eq(d.model("heavy-rep")["triangles"], 12, "triangles after replace")
+    expect_ok(d.post("/api/render", {"model": "heavy-rep", "width": 8, "height": 8}))
+
+
+@test
+def test_upload_gzip_bomb_refused():
+    """A small .gz that inflates past --max-upload (64K) is refused with 413, not inflated."""
+    d = limits_daemon()
+    bomb = gzip.compress(b"v 0 0 0\n" * (1 << 17))   # 1 MiB inflated, ~2 KB compressed
+    check(len(bomb) < 16384, "bomb is %d bytes" % len(bomb))
+    expect_error(put(d, "bomb", bomb), 413, "too_large")
+    expect_error(d.get("/api/models/bomb"), 404, "not_found")
