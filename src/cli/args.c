@@ -16,6 +16,16 @@ const char *cli_value(const char *cmd, int argc, char **argv, int *i)
     return argv[*i];
 }
 
+bool cli_once(const char *cmd, const char *opt, const char **slot, const char *value)
+{
+    if (*slot != NULL) {
+        fprintf(stderr, "arbord %s: %s given twice ('%s' and '%s'); it takes one\n", cmd, opt, *slot, value);
+        return false;
+    }
+    *slot = value;
+    return true;
+}
+
 bool cli_int(const char *cmd, const char *opt, const char *s, long lo, long hi, int *out)
 {
     char *end;

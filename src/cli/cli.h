@@ -17,6 +17,9 @@ int cmd_gen(int argc, char **argv);
 /* argv[*i] is an option that takes a value: returns argv[*i + 1] and advances
  * *i, or prints "arbord CMD: OPT needs a value" and returns NULL. */
 const char *cli_value(const char *cmd, int argc, char **argv, int *i);
+/* For an option given at most once (--model, -o): stores value in *slot,
+ * or prints "arbord CMD: OPT given twice ('a' and 'b')" and returns false. */
+bool cli_once(const char *cmd, const char *opt, const char **slot, const char *value);
 /* Parse a whole number / a finite number in [lo, hi]; prints the error. */
 bool cli_int(const char *cmd, const char *opt, const char *s, long lo, long hi, int *out);
 bool cli_float(const char *cmd, const char *opt, const char *s, double lo, double hi, float *out);

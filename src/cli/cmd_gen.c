@@ -136,9 +136,7 @@ static bool parse_args(int argc, char **argv, gen_args *a)
         const char *value = cli_value("gen", argc, argv, &i);
         if (value == NULL)
             return false;
-        if (target != NULL)
-            *target = value;
-        else if (!cli_int("gen", s, value, 0, 1000000, number))
+        if (target != NULL ? !cli_once("gen", s, target, value) : !cli_int("gen", s, value, 0, 1000000, number))
             return false;
     }
     return true;

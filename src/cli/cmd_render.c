@@ -4,6 +4,7 @@
  */
 #include <stdio.h>
 #include <string.h>
+#include <strings.h>
 
 #include "arbor/accel.h"
 #include "arbor/load.h"
@@ -26,7 +27,7 @@ static void usage(FILE *out)
             "  --bounces N             mirror reflections, 0..%d (default 4)\n"
             "  --ao-samples N          rays per AO sample, 1..%d (default 8)\n"
             "  --seed N                frame seed for the sample positions (default 1)\n"
-            "  --threads N             render threads (default: one per core)\n"
+            "  --threads N             render and build threads; 0 = one per core (default 0)\n"
             "  --counts                also report node steps and triangle tests per primary ray\n"
             "Without --yaw/--pitch/--distance the camera is PROTOCOL.md's view.\n",
             ARBOR_MAX_IMAGE_SIZE, ARBOR_MAX_SPP, ARBOR_MAX_BOUNCES, ARBOR_MAX_AO_SAMPLES);
@@ -53,6 +54,14 @@ static bool takes_value(const char *opt)
     return false;
 }
 
+/* PNG is the one format written: a name promising another (x.jpg) would
+ * get PNG bytes under the wrong extension. */
+static bool has_png_extension(const char *path)
+{
+    size_t n = strlen(path);
+    return n >= 4 && strcasecmp(path + n - 4, ".png") == 0;
+}
+
 /* Parses argv into a; returns -1 to go on, else the exit code. */
 static int parse_args(int argc, char **argv, render_args *a)
 {
@@ -76,9 +85,9 @@ static int parse_args(int argc, char **argv, render_args *a)
             return 2;
         bool ok = true;
         if (strcmp(opt, "--model") == 0) {
-            a->model = v;
+            ok = cli_once(cmd, opt, &a->model, v);
         } else if (strcmp(opt, "-o") == 0 || strcmp(opt, "--output") == 0) {
-            a->output = v;
+            ok = cli_once(cmd, opt, &a->output, v);
         } else if (strcmp(opt, "--accel") == 0) {
             if (!(ok = arbor_accel_kind_parse(v, &a->kind)))
                 fprintf(stderr, "arbord render: unknown accel '%s' (bvh, kd)\n", v);
@@ -115,6 +124,11 @@ static int parse_args(int argc, char **argv, render_args *a)
     if (a->model == NULL || a->output == NULL) {
         fprintf(stderr, "arbord render: %s is required\n", a->model == NULL ? "--model FILE" : "-o OUT.png");
         usage(stderr);
+        return 2;
+    }
+    if (!has_png_extension(a->output)) {
+        fprintf(stderr, "arbord render: -o %s: the image is written as PNG, so its name must end in .png\n",
+                a->output);
         return 2;
     }
     return -1;

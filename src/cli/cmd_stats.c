@@ -16,7 +16,10 @@ static void usage(FILE *out)
 {
     fprintf(out,
             "usage: arbord stats --model FILE [--accel bvh|kd|all] [--builder NAME|all] [--threads N] [--json]\n"
-            "  builders: spatial, median, mean, sah (default: all); accel default: bvh\n");
+            "  --accel     bvh, kd or all (default bvh)\n"
+            "  --builder   spatial, median, mean, sah or all (default all)\n"
+            "  --threads N build threads; 0 = one per core (default 0)\n"
+            "  --json      one JSON object per line instead of a table\n");
 }
 
 /* One JSON object on one line, in report.h's encoding; false when out of memory. */
@@ -59,7 +62,8 @@ int cmd_stats(int argc, char **argv)
         } else if (strcmp(a, "--json") == 0) {
             json = true;
         } else if (strcmp(a, "--model") == 0) {
-            if ((model = cli_value("stats", argc, argv, &i)) == NULL) return 2;
+            const char *v = cli_value("stats", argc, argv, &i);
+            if (v == NULL || !cli_once("stats", a, &model, v)) return 2;
         } else if (strcmp(a, "--accel") == 0) {
             if ((accel = cli_value("stats", argc, argv, &i)) == NULL) return 2;
         } else if (strcmp(a, "--builder") == 0) {
