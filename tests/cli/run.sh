@@ -1,0 +1,195 @@
+#!/usr/bin/env bash
+# tests/cli/run.sh - arbord and the scripts as a user meets them: output
+# errors fail every subcommand, render refuses names it would not honour and
+# never removes what it did not make, options given twice are refused,
+# --threads 0 is documented, the JSON keys scripts read stay put, bench_tables.py
+# reads bench's output, and scripts/deps.sh finds deb entries in both apt
+# source formats. Ends with Unity's summary line, for tests/run.sh.
+#
+#   ARBORD=build/arbord tests/cli/run.sh      (ARBORD defaults to build/arbord)
+set -u
+root=$(cd "$(dirname "$0")/../.." && pwd)
+arbord=${ARBORD:-$root/build/arbord}
+case "$arbord" in /*) ;; *) arbord=$root/$arbord ;; esac
+model=$root/models/cornell.obj
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+tests=0
+failures=0
+
+# check NAME COMMAND...: runs the command; a non-zero status is a failure.
+check() {
+    local name=$1
+    shift
+    tests=$((tests + 1))
+    if "$@" >"$tmp/out" 2>"$tmp/err"; then
+        echo "tests/cli/run.sh:$name:PASS"
+    else
+        failures=$((failures + 1))
+        echo "tests/cli/run.sh:$name:FAIL"
+        sed 's/^/    /' "$tmp/err" | head -n 10
+    fi
+}
+
+fail() {
+    echo "$*" >&2
+    return 1
+}
+
+# Runs arbord with stdout on /dev/full: must exit non-zero and say so.
+full_fails() {
+    local rc=0
+    "$arbord" "$@" >/dev/full 2>"$tmp/full.err" || rc=$?
+    [ "$rc" -ne 0 ] || fail "arbord $* > /dev/full exited 0"
+    grep -q "cannot write to standard output" "$tmp/full.err" || fail "no message: $(cat "$tmp/full.err")"
+}
+
+output_errors_fail() {
+    full_fails stats --model "$model" --builder sah &&
+        full_fails stats --model "$model" --builder sah --json &&
+        full_fails render --model "$model" --width 32 --height 24 -o "$tmp/o.png" &&
+        full_fails bench --parse --model "$model" --runs 1 &&
+        full_fails gen sphere --level 1 -o "$tmp/s.obj" &&
+        full_fails render --help &&
+        full_fails --help
+}
+
+# usage_fails ARGS...: exit status 2, nothing written to $tmp/never.*
+usage_fails() {
+    local rc=0
+    "$arbord" "$@" >/dev/null 2>"$tmp/usage.err" || rc=$?
+    [ "$rc" -eq 2 ] || fail "arbord $*: exit $rc, not 2"
+    ! ls "$tmp"/never.* >/dev/null 2>&1 || fail "arbord $* wrote a file"
+}
+
+render_refuses_other_extensions() {
+    usage_fails render --model "$model" -o "$tmp/never.jpg" &&
+        usage_fails render --model "$model" -o "$tmp/never" &&
+        grep -q "must end in .png" "$tmp/usage.err" &&
+        "$arbord" render --model "$model" --width 16 --height 16 -o "$tmp/upper.PNG" >/dev/null &&
+        [ -s "$tmp/upper.PNG" ]
+}
+
+one_value_options_refuse_a_second() {
+    usage_fails render --model "$model" --model "$model" -o "$tmp/never.png" &&
+        grep -q -- "--model given twice" "$tmp/usage.err" &&
+        usage_fails render --model "$model" -o "$tmp/never.png" -o "$tmp/never2.png" &&
+        usage_fails stats --model "$model" --model "$model" &&
+        grep -q -- "--model given twice" "$tmp/usage.err" &&
+        usage_fails gen sphere -o "$tmp/never.obj" -o "$tmp/never2.obj"
+}
+
+# A failed write leaves what was at the path: a device stays a device, an
+# existing image stays whole when the folder cannot take a new one.
+render_never_removes_what_it_did_not_make() {
+    local rc=0
+    "$arbord" render --model "$model" --width 64 --height 64 -o /dev/full >/dev/null 2>"$tmp/dev.err" || rc=$?
+    [ "$rc" -ne 0 ] || fail "render -o /dev/full exited 0"
+    [ -c /dev/full ] || fail "/dev/full is no longer a character device"
+    rc=0
+    "$arbord" render --model "$model" --width 16 --height 16 -o "$tmp/nodir/x.png" >/dev/null 2>&1 || rc=$?
+    [ "$rc" -eq 1 ] || fail "render into a missing folder: exit $rc"
+    [ "$(ls -A "$tmp" | grep -c '\.png\.')" -eq 0 ] || fail "a temporary file was left behind"
+}
+
+threads_zero_is_documented() {
+    local cmd
+    for cmd in render stats bench; do
+        "$arbord" "$cmd" --help | grep -q -- "--threads N.*0 = one per core" ||
+            fail "arbord $cmd --help does not say --threads 0 means one per core"
+    done
+    grep -q -- "--threads 0" "$root/README.md" || fail "README.md does not document --threads 0"
+}
+
+# The keys scripts/bench_tables.py and users' scripts read.
+json_keys_stay() {
+    "$arbord" stats --model "$model" --accel kd --builder sah --json > "$tmp/stats.json" &&
+        "$arbord" bench --model "$model" --accel bvh --builder sah --runs 1 --format json > "$tmp/bench.json" 2>/dev/null &&
+        python3 - "$tmp/stats.json" "$tmp/bench.json" <<'EOF'
+import json, sys
+stats = [json.loads(l) for l in open(sys.argv[1])]
+bench = [json.loads(l) for l in open(sys.argv[2])]
+want_stats = ["model", "triangles", "accel", "builder", "build_ms", "nodes", "leaves", "empty_leaves",
+              "max_depth", "mean_leaf_depth", "mean_tris_per_leaf", "refs", "bytes", "sah_cost"]
+want_bench = ["model", "triangles", "accel", "builder", "threads", "build_ms", "mean_leaf_depth",
+              "mean_tris_per_leaf", "sah_cost", "render_ms", "primary_mrays", "diffuse_mrays", "shadow_mrays",
+              "primary_hits", "primary_tsum"]
+assert len(stats) == 1 and list(stats[0]) == want_stats, list(stats[0])
+assert len(bench) == 1 and list(bench[0]) == want_bench, list(bench[0])
+assert bench[0]["accel"] == "bvh" and bench[0]["builder"] == "sah" and bench[0]["primary_hits"] > 0
+EOF
+}
+
+bench_tables_read_bench_output() {
+    "$arbord" bench --model "$model" --runs 1 --format json > "$tmp/all.json" 2>/dev/null &&
+        "$arbord" stats --model "$model" --accel kd --builder sah --json > "$tmp/kd.json" &&
+        python3 "$root/scripts/bench_tables.py" "$tmp/all.json" "$tmp/all.json" "$tmp/kd.json" > "$tmp/tables.md" &&
+        grep -q "## Ray sets, all cores" "$tmp/tables.md" &&
+        grep -q "| cornell | 36 | bvh sah |" "$tmp/tables.md"
+}
+
+# scripts/deps.sh's deb-src entries from each apt source format.
+deps_reads_both_apt_formats() {
+    cat > "$tmp/sources.list" <<'EOF'
+# debootstrap's default
+deb http://deb.debian.org/debian bookworm main
+deb [arch=amd64 signed-by=/usr/share/keyrings/x.gpg] http://deb.debian.org/debian-security bookworm-security main contrib # note
+deb-src http://deb.debian.org/debian bookworm main
+#deb http://example.org/disabled bookworm main
+EOF
+    cat > "$tmp/debian.sources" <<'EOF'
+Types: deb
+URIs: http://deb.debian.org/debian
+Suites: bookworm bookworm-updates
+Components: main
+Signed-By: /usr/share/keyrings/debian-archive-keyring.gpg
+
+# a disabled stanza
+Types: deb
+URIs: http://example.org/off
+Suites: bookworm
+Components: main
+Enabled: no
+
+Types: deb-src
+URIs: http://example.org/sources-only
+Suites: bookworm
+Components: main
+
+types: deb deb-src
+uris: http://mirror.example.org/debian
+suites: trixie
+components: main non-free
+signed-by:
+ -----BEGIN PGP PUBLIC KEY BLOCK-----
+ .
+ -----END PGP PUBLIC KEY BLOCK-----
+EOF
+    cat > "$tmp/want.list" <<'EOF'
+deb-src http://deb.debian.org/debian bookworm main
+deb-src [arch=amd64 signed-by=/usr/share/keyrings/x.gpg] http://deb.debian.org/debian-security bookworm-security main contrib
+EOF
+    cat > "$tmp/want.sources" <<'EOF'
+deb-src [signed-by=/usr/share/keyrings/debian-archive-keyring.gpg] http://deb.debian.org/debian bookworm main
+deb-src [signed-by=/usr/share/keyrings/debian-archive-keyring.gpg] http://deb.debian.org/debian bookworm-updates main
+deb-src http://mirror.example.org/debian trixie main non-free
+EOF
+    (. "$root/scripts/deps.sh" && deb_src_entries "$tmp/sources.list") > "$tmp/got.list" &&
+        (. "$root/scripts/deps.sh" && deb_src_entries "$tmp/debian.sources") > "$tmp/got.sources" &&
+        diff "$tmp/want.list" "$tmp/got.list" >&2 &&
+        diff "$tmp/want.sources" "$tmp/got.sources" >&2
+}
+
+[ -x "$arbord" ] || { echo "tests/cli/run.sh: no arbord at $arbord (set ARBORD)"; echo "1 Tests 1 Failures 0 Ignored"; exit 1; }
+check output_errors_fail output_errors_fail
+check render_refuses_other_extensions render_refuses_other_extensions
+check one_value_options_refuse_a_second one_value_options_refuse_a_second
+check render_never_removes_what_it_did_not_make render_never_removes_what_it_did_not_make
+check threads_zero_is_documented threads_zero_is_documented
+check json_keys_stay json_keys_stay
+check bench_tables_read_bench_output bench_tables_read_bench_output
+check deps_reads_both_apt_formats deps_reads_both_apt_formats
+echo
+echo "-----------------------"
+echo "$tests Tests $failures Failures 0 Ignored"
+[ "$failures" -eq 0 ]
