@@ -121,6 +121,8 @@ bool arbor_render_params_validate(const arbor_render_params *p, arbor_err *e);
  * NULL with e filled on invalid parameters or when out of memory. */
 arbor_frame *arbor_render_submit(arbor_pool *pool, const arbor_accel *a, const arbor_render_params *p,
                                  arbor_frame_done_fn done, void *user, arbor_err *e);
+/* True once a tile of the frame has started rendering. */
+bool arbor_frame_started(const arbor_frame *f);
 /* Stops the frame between tiles; its done reports cancelled. */
 void arbor_frame_cancel(arbor_frame *f);
 /* Blocks until the frame's done has returned; its result. */

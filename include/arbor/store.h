@@ -132,6 +132,10 @@ arbor_model *arbor_tree_model(const arbor_tree *t);
 
 void arbor_store_usage_of(arbor_store *s, arbor_store_usage *u);
 
+/* Asks every build in progress to stop (shutdown): their waiters are
+ * called soon with ARBOR_ERR_CANCELLED. Does not wait. */
+void arbor_store_cancel_builds(arbor_store *s);
+
 /* Bytes a mesh holds (its arrays). */
 uint64_t arbor_mesh_bytes(const arbor_mesh *m);
 

@@ -530,6 +530,11 @@ arbor_frame *arbor_render_submit(arbor_pool *pool, const arbor_accel *a, const a
     return f;
 }
 
+bool arbor_frame_started(const arbor_frame *f)
+{
+    return atomic_load(&f->started);
+}
+
 void arbor_frame_cancel(arbor_frame *f)
 {
     arbor_job_cancel(f->job);

@@ -687,10 +687,8 @@ arbor_acquire arbor_store_acquire_tree(arbor_store *s, arbor_model *m, arbor_acc
     return r;
 }
 
-void arbor_store_destroy(arbor_store *s)
+void arbor_store_cancel_builds(arbor_store *s)
 {
-    if (s == NULL)
-        return;
     pthread_mutex_lock(&s->lock);
     for (uint32_t i = 0; i < s->nmodels; i++)
         for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
@@ -699,6 +697,15 @@ void arbor_store_destroy(arbor_store *s)
                     atomic_store(&s->models[i]->slots[k][b].build->cancel, true);
                     arbor_job_cancel(s->models[i]->slots[k][b].build->job);
                 }
+    pthread_mutex_unlock(&s->lock);
+}
+
+void arbor_store_destroy(arbor_store *s)
+{
+    if (s == NULL)
+        return;
+    arbor_store_cancel_builds(s);
+    pthread_mutex_lock(&s->lock);
     while (s->building > 0)
         pthread_cond_wait(&s->builds_done, &s->lock);
     pthread_mutex_unlock(&s->lock);

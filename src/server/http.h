@@ -1,0 +1,147 @@
+/*
+ * http.h - what the server's modules share: the server and request records,
+ * replies, suspension, and each module's entry points. Private to
+ * src/server/; the public face is include/arbor/server.h.
+ *
+ * A request (http_req) is reference counted: libmicrohttpd's connection holds
+ * one reference until the request is completed, and asynchronous work (a
+ * frame, a build, an upload, a bench job) holds one until it has replied.
+ * Replying from a worker is `http_reply_*` then `http_resume`; the polling
+ * thread then queues the stored response. A route handler either replies at
+ * once or calls http_suspend before handing the request to a worker.
+ */
+#ifndef ARBOR_SERVER_HTTP_H
+#define ARBOR_SERVER_HTTP_H
+
+#include <cjson/cJSON.h>
+#include <microhttpd.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "arbor/server.h"
+#include "metrics.h"
+#include "render_request.h"
+
+typedef struct http_req http_req;
+typedef struct render_req render_req;
+typedef struct job_table job_table;
+
+
+struct arbor_server {
+    arbor_server_config config;
+    char *token;                    /* owned copy of config.token */
+    arbor_store *store;
+    arbor_pool *pool;
+    struct MHD_Daemon *mhd;
+    int port;
+    bool loopback;                  /* bound to a loopback address */
+    double start_ms;
+    http_metrics metrics;
+    job_table *jobs;
+
+    pthread_mutex_t lock;           /* guards everything down to `inflight` */
+    pthread_cond_t idle;            /* signalled when `inflight` drops to 0 */
+    char **pending;                 /* readiness: what is still loading */
+    uint32_t npending;
+    bool loaded, stopping;
+    render_req *frames;             /* frames admitted and not yet answered (list) */
+    uint32_t nframes;               /* its length: admission counts it */
+    uint32_t inflight;              /* requests suspended, waiting for a worker */
+    uint64_t next_request_id;
+
+    pthread_t reaper;               /* cancels frames past --frame-timeout */
+    pthread_cond_t reaper_wake;
+    bool reaper_started;
+};
+
+struct http_req {
+    arbor_server *srv;
+    struct MHD_Connection *conn;
+    atomic_int refs;
+    char id[24];
+    char method[16];
+    char *url;
+    http_route route;
+    double start_ms;
+
+    /* the body, up to `limit` bytes */
+    char *body;
+    size_t body_len, body_cap, limit;
+    bool too_large;
+    struct MHD_PostProcessor *post;
+    struct upload_parts *parts;      /* multipart uploads (models.c) */
+
+    /* the answer: set once, by the handler or by a worker */
+    struct MHD_Response *response;
+    unsigned status;
+    uint64_t bytes;
+    bool suspended;                  /* polling thread only */
+};
+
+/* ---- replies (server.c) ---- */
+/* Stores a JSON answer (takes ownership of body). */
+void http_reply_json(http_req *r, unsigned status, cJSON *body);
+/* Stores {"error":{"code","message"}}. */
+void http_reply_error(http_req *r, unsigned status, const char *code, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+/* Stores the error an arbor_err maps to (404 not found, 507 no space, ...). */
+void http_reply_err(http_req *r, const arbor_err *e);
+/* Stores a body the response frees with free(). */
+void http_reply_buffer(http_req *r, unsigned status, const char *content_type, void *data, size_t len);
+/* Adds a header to the stored response. */
+void http_reply_header(http_req *r, const char *name, const char *value);
+
+/* ---- suspension (server.c) ---- */
+/* The handler hands r to a worker: suspends the connection and takes a
+ * reference for the worker. */
+void http_suspend(http_req *r);
+/* The worker has replied: resumes the connection and drops its reference. */
+void http_resume(http_req *r);
+void http_req_release(http_req *r);
+
+/* ---- helpers (server.c) ---- */
+const char *http_arg(http_req *r, const char *key);
+bool http_may_write(http_req *r);   /* replies 401/403 when not */
+bool http_method_is(http_req *r, const char *m);
+void http_method_not_allowed(http_req *r, const char *allow);
+/* The body as JSON: an object (replies 400 and returns NULL otherwise). */
+cJSON *http_body_json(http_req *r);
+
+/* ---- routes ---- */
+void route_models(http_req *r, const char *name, const char *rest);  /* models.c */
+void route_render(http_req *r);                                        /* render_route.c */
+void route_ray(http_req *r);                                           /* render_route.c */
+void route_stats(http_req *r);                                         /* stats.c */
+void route_tree_build(http_req *r, arbor_model *m);                    /* stats.c */
+void route_boxes(http_req *r, arbor_model *m, const char *accel, const char *builder); /* stats.c */
+void route_bench(http_req *r);                                         /* jobs.c */
+void route_job(http_req *r, const char *id);                           /* jobs.c */
+void route_static(http_req *r, const char *path);                      /* static.c */
+
+/* models.c: the body of an upload, from the polling thread. */
+bool models_post_data(http_req *r, const char *data, size_t size);
+void models_parts_free(http_req *r);
+
+/* render_route.c: frames in flight. frames_count wants s->lock held; the
+ * others take it. */
+void frames_cancel_all(arbor_server *s);
+void frames_reap(arbor_server *s, double now_ms);
+void frames_count(arbor_server *s, uint32_t *waiting, uint32_t *rendering);
+/* Reads a render or ray request and the model it names (a reference);
+ * false with the reply made. */
+bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_params *params,
+                         arbor_model **model);
+
+/* jobs.c */
+job_table *jobs_create(arbor_pool *pool);
+void jobs_cancel_all(job_table *t);
+void jobs_destroy(job_table *t);
+
+/* stats.c: one model as JSON (the MODEL of docs/API.md). */
+cJSON *model_json(arbor_server *s, arbor_model *m);
+/* Parses "bvh"/"kd" and a builder name; replies 400 when unknown. */
+bool parse_tree_names(http_req *r, const char *accel, const char *builder, arbor_accel_kind *k, arbor_builder *b);
+
+#endif

@@ -1,0 +1,774 @@
+/*
+ * server.c - the libmicrohttpd daemon: request records, routing, replies,
+ * suspension and resumption, the access log, readiness, the frame-timeout
+ * reaper and shutdown (see include/arbor/server.h and http.h).
+ *
+ * libmicrohttpd calls on_request several times per request on its one
+ * polling thread: once with the headers, once per piece of body, once with
+ * no data left (dispatch), and once more after a suspended connection is
+ * resumed. Nothing here blocks: a handler replies at once or hands the
+ * request to a worker, which replies and resumes.
+ */
+#include <arpa/inet.h>
+#include <errno.h>
+#include <inttypes.h>
+#include <math.h>
+#include <netinet/in.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "arbor/sys.h"
+#include "http.h"
+
+#define REAPER_PERIOD_MS 100
+
+/* ---- replies ---- */
+
+static void reply_response(http_req *r, unsigned status, struct MHD_Response *resp, size_t bytes)
+{
+    if (r->response != NULL)
+        MHD_destroy_response(r->response);
+    r->response = resp;
+    r->status = status;
+    r->bytes = bytes;
+}
+
+void http_reply_buffer(http_req *r, unsigned status, const char *content_type, void *data, size_t len)
+{
+    struct MHD_Response *resp = MHD_create_response_from_buffer(len, data, MHD_RESPMEM_MUST_FREE);
+    if (resp == NULL) {
+        free(data);
+        resp = MHD_create_response_from_buffer(0, (void *)"", MHD_RESPMEM_PERSISTENT);
+        status = MHD_HTTP_INTERNAL_SERVER_ERROR;
+    }
+    if (resp != NULL)
+        MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, content_type);
+    reply_response(r, status, resp, len);
+}
+
+void http_reply_json(http_req *r, unsigned status, cJSON *body)
+{
+    char *text = body != NULL ? cJSON_PrintUnformatted(body) : NULL;
+    cJSON_Delete(body);
+    if (text == NULL) {
+        static const char oom[] = "{\"error\":{\"code\":\"internal\",\"message\":\"out of memory\"}}";
+        struct MHD_Response *resp =
+            MHD_create_response_from_buffer(sizeof oom - 1, (void *)oom, MHD_RESPMEM_PERSISTENT);
+        if (resp != NULL)
+            MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, "application/json");
+        reply_response(r, MHD_HTTP_INTERNAL_SERVER_ERROR, resp, sizeof oom - 1);
+        return;
+    }
+    size_t len = strlen(text);
+    /* A newline ends the body, so curl's output ends a line. */
+    char *line = realloc(text, len + 2);
+    if (line != NULL) {
+        text = line;
+        text[len++] = '\n';
+        text[len] = '\0';
+    }
+    http_reply_buffer(r, status, "application/json", text, len);
+}
+
+void http_reply_error(http_req *r, unsigned status, const char *code, const char *fmt, ...)
+{
+    char msg[1024];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    cJSON *o = cJSON_CreateObject(), *err = cJSON_AddObjectToObject(o, "error");
+    cJSON_AddStringToObject(err, "code", code);
+    cJSON_AddStringToObject(err, "message", msg);
+    http_reply_json(r, status, o);
+}
+
+void http_reply_err(http_req *r, const arbor_err *e)
+{
+    switch (e->status) {
+    case ARBOR_ERR_NOT_FOUND: http_reply_error(r, 404, "not_found", "%s", e->msg); break;
+    case ARBOR_ERR_EXISTS: http_reply_error(r, 409, "conflict", "%s", e->msg); break;
+    case ARBOR_ERR_NOSPACE: http_reply_error(r, 507, "insufficient_memory", "%s", e->msg); break;
+    case ARBOR_ERR_NOMEM: http_reply_error(r, 507, "insufficient_memory", "%s", e->msg); break;
+    case ARBOR_ERR_CANCELLED: http_reply_error(r, 503, "busy", "%s", e->msg); break;
+    case ARBOR_ERR_PARSE:
+    case ARBOR_ERR_INVALID: http_reply_error(r, 400, "bad_request", "%s", e->msg); break;
+    default: http_reply_error(r, 500, "internal", "%s", e->msg); break;
+    }
+}
+
+void http_reply_header(http_req *r, const char *name, const char *value)
+{
+    if (r->response != NULL)
+        MHD_add_response_header(r->response, name, value);
+}
+
+/* ---- request records ---- */
+
+void http_req_release(http_req *r)
+{
+    if (r == NULL || atomic_fetch_sub(&r->refs, 1) != 1)
+        return;
+    if (r->response != NULL)
+        MHD_destroy_response(r->response);
+    if (r->post != NULL)
+        MHD_destroy_post_processor(r->post);
+    models_parts_free(r);
+    free(r->body);
+    free(r->url);
+    free(r);
+}
+
+void http_suspend(http_req *r)
+{
+    arbor_server *s = r->srv;
+    atomic_fetch_add(&r->refs, 1);
+    pthread_mutex_lock(&s->lock);
+    s->inflight++;
+    pthread_mutex_unlock(&s->lock);
+    r->suspended = true;
+    MHD_suspend_connection(r->conn);
+}
+
+void http_resume(http_req *r)
+{
+    arbor_server *s = r->srv;
+    MHD_resume_connection(r->conn);
+    pthread_mutex_lock(&s->lock);
+    if (--s->inflight == 0)
+        pthread_cond_broadcast(&s->idle);
+    pthread_mutex_unlock(&s->lock);
+    http_req_release(r);
+}
+
+const char *http_arg(http_req *r, const char *key)
+{
+    return MHD_lookup_connection_value(r->conn, MHD_GET_ARGUMENT_KIND, key);
+}
+
+bool http_method_is(http_req *r, const char *m)
+{
+    return strcmp(r->method, m) == 0;
+}
+
+void http_method_not_allowed(http_req *r, const char *allow)
+{
+    http_reply_error(r, 405, "method_not_allowed", "%s is not allowed on %s (allowed: %s)", r->method, r->url, allow);
+    http_reply_header(r, MHD_HTTP_HEADER_ALLOW, allow);
+}
+
+/* Compares in time independent of where the strings differ. */
+static bool same_secret(const char *a, const char *b)
+{
+    size_t la = strlen(a), lb = strlen(b);
+    unsigned char diff = (unsigned char)(la != lb);
+    for (size_t i = 0; i < la; i++)
+        diff |= (unsigned char)(a[i] ^ b[i % (lb ? lb : 1)]);
+    return diff == 0;
+}
+
+bool http_may_write(http_req *r)
+{
+    arbor_server *s = r->srv;
+    if (s->token == NULL) {
+        if (s->loopback)
+            return true;
+        http_reply_error(r, 403, "forbidden",
+                         "changes are refused on a non-loopback address without --token-file");
+        return false;
+    }
+    const char *auth = MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_AUTHORIZATION);
+    if (auth != NULL && strncmp(auth, "Bearer ", 7) == 0 && same_secret(auth + 7, s->token))
+        return true;
+    http_reply_error(r, 401, "unauthorized", "this request changes state: send Authorization: Bearer <token>");
+    http_reply_header(r, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Bearer");
+    return false;
+}
+
+cJSON *http_body_json(http_req *r)
+{
+    if (r->body_len == 0) {
+        http_reply_error(r, 400, "bad_request", "a JSON object body is required");
+        return NULL;
+    }
+    const char *end = NULL;
+    cJSON *j = cJSON_ParseWithLengthOpts(r->body, r->body_len, &end, false);
+    if (j == NULL) {
+        size_t at = end != NULL && end >= r->body ? (size_t)(end - r->body) : 0;
+        http_reply_error(r, 400, "bad_request", "malformed JSON body near byte %zu", at);
+        return NULL;
+    }
+    if (!cJSON_IsObject(j)) {
+        cJSON_Delete(j);
+        http_reply_error(r, 400, "bad_request", "the JSON body must be an object");
+        return NULL;
+    }
+    return j;
+}
+
+/* ---- readiness, health, metrics ---- */
+
+void arbor_server_pending(arbor_server *s, const char *what)
+{
+    char *copy = strdup(what);
+    pthread_mutex_lock(&s->lock);
+    char **grown = copy != NULL ? realloc(s->pending, (s->npending + 1) * sizeof *grown) : NULL;
+    if (grown != NULL) {
+        s->pending = grown;
+        s->pending[s->npending++] = copy;
+        copy = NULL;
+    }
+    pthread_mutex_unlock(&s->lock);
+    free(copy);
+}
+
+void arbor_server_pending_done(arbor_server *s, const char *what)
+{
+    pthread_mutex_lock(&s->lock);
+    for (uint32_t i = 0; i < s->npending; i++)
+        if (strcmp(s->pending[i], what) == 0) {
+            free(s->pending[i]);
+            s->pending[i] = s->pending[--s->npending];
+            break;
+        }
+    pthread_mutex_unlock(&s->lock);
+}
+
+void arbor_server_loaded(arbor_server *s)
+{
+    pthread_mutex_lock(&s->lock);
+    s->loaded = true;
+    pthread_mutex_unlock(&s->lock);
+}
+
+static void route_readyz(http_req *r)
+{
+    arbor_server *s = r->srv;
+    cJSON *o = cJSON_CreateObject();
+    pthread_mutex_lock(&s->lock);
+    bool ready = s->loaded && s->npending == 0 && !s->stopping;
+    cJSON_AddStringToObject(o, "status", s->stopping ? "stopping" : ready ? "ready" : "loading");
+    if (!s->stopping && !ready) {
+        cJSON *p = cJSON_AddArrayToObject(o, "pending");
+        for (uint32_t i = 0; i < s->npending; i++)
+            cJSON_AddItemToArray(p, cJSON_CreateString(s->pending[i]));
+    }
+    pthread_mutex_unlock(&s->lock);
+    http_reply_json(r, ready ? 200 : 503, o);
+}
+
+static void route_metrics(http_req *r)
+{
+    arbor_server *s = r->srv;
+    metrics_gauges g = {0};
+    arbor_store_usage u;
+    arbor_store_usage_of(s->store, &u);
+    g.uptime_s = (arbor_now_ms() - s->start_ms) / 1e3;
+    g.model_bytes = u.models;
+    g.tree_bytes = u.trees;
+    g.models = u.nmodels;
+    pthread_mutex_lock(&s->lock);
+    frames_count(s, &g.frames_waiting, &g.frames_rendering);
+    pthread_mutex_unlock(&s->lock);
+    size_t len = 0;
+    char *text = metrics_expose(&s->metrics, &g, &len);
+    if (text == NULL) {
+        http_reply_error(r, 500, "internal", "out of memory writing the metrics");
+        return;
+    }
+    http_reply_buffer(r, 200, "text/plain; version=0.0.4; charset=utf-8", text, len);
+}
+
+/* ---- routing ---- */
+
+/* Copies the next path segment of *p (after a '/') into seg; false when
+ * there is none or it is too long. */
+static bool next_segment(const char **p, char *seg, size_t cap)
+{
+    if (**p != '/')
+        return false;
+    const char *start = *p + 1, *end = strchr(start, '/');
+    size_t n = end != NULL ? (size_t)(end - start) : strlen(start);
+    if (n == 0 || n >= cap)
+        return false;
+    memcpy(seg, start, n);
+    seg[n] = '\0';
+    *p = start + n;
+    return true;
+}
+
+static http_route classify(const char *path)
+{
+    if (strcmp(path, "/healthz") == 0) return ROUTE_HEALTHZ;
+    if (strcmp(path, "/readyz") == 0) return ROUTE_READYZ;
+    if (strcmp(path, "/metrics") == 0) return ROUTE_METRICS;
+    if (strcmp(path, "/api/models") == 0) return ROUTE_MODELS;
+    if (strcmp(path, "/api/stats") == 0) return ROUTE_STATS;
+    if (strcmp(path, "/api/render") == 0) return ROUTE_RENDER;
+    if (strcmp(path, "/api/ray") == 0) return ROUTE_RAY;
+    if (strcmp(path, "/api/bench") == 0) return ROUTE_BENCH;
+    if (strncmp(path, "/api/jobs/", 10) == 0) return ROUTE_JOBS;
+    if (strncmp(path, "/api/models/", 12) == 0) {
+        const char *boxes = strstr(path, "/boxes");
+        if (boxes != NULL && boxes[6] == '\0') return ROUTE_BOXES;
+        const char *trees = strstr(path + 12, "/trees");
+        return trees != NULL && trees[6] == '\0' ? ROUTE_TREES : ROUTE_MODEL;
+    }
+    if (strncmp(path, "/api/", 5) == 0 || strcmp(path, "/api") == 0) return ROUTE_UNKNOWN;
+    return ROUTE_STATIC;
+}
+
+static void only(http_req *r, const char *method, void (*handler)(http_req *))
+{
+    if (http_method_is(r, method) || (strcmp(method, "GET") == 0 && http_method_is(r, "HEAD")))
+        handler(r);
+    else
+        http_method_not_allowed(r, strcmp(method, "GET") == 0 ? "GET, HEAD" : method);
+}
+
+static void route_healthz(http_req *r)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddStringToObject(o, "status", "ok");
+    http_reply_json(r, 200, o);
+}
+
+static void list_models(http_req *r)
+{
+    arbor_model **models;
+    uint32_t n = arbor_store_list_models(r->srv->store, &models);
+    cJSON *o = cJSON_CreateObject(), *a = cJSON_AddArrayToObject(o, "models");
+    for (uint32_t i = 0; i < n; i++) {
+        cJSON_AddItemToArray(a, model_json(r->srv, models[i]));
+        arbor_model_release(models[i]);
+    }
+    free(models);
+    http_reply_json(r, 200, o);
+}
+
+static void dispatch(http_req *r, const char *path)
+{
+    switch (r->route) {
+    case ROUTE_HEALTHZ: only(r, "GET", route_healthz); return;
+    case ROUTE_READYZ: only(r, "GET", route_readyz); return;
+    case ROUTE_METRICS: only(r, "GET", route_metrics); return;
+    case ROUTE_MODELS: only(r, "GET", list_models); return;
+    case ROUTE_STATS: only(r, "GET", route_stats); return;
+    case ROUTE_RAY: only(r, "POST", route_ray); return;
+    case ROUTE_BENCH: only(r, "POST", route_bench); return;
+    case ROUTE_RENDER:
+        if (http_method_is(r, "GET") || http_method_is(r, "HEAD") || http_method_is(r, "POST"))
+            route_render(r);
+        else
+            http_method_not_allowed(r, "GET, HEAD, POST");
+        return;
+    case ROUTE_JOBS: route_job(r, path + 10); return;
+    case ROUTE_MODEL:
+    case ROUTE_TREES:
+    case ROUTE_BOXES: {
+        char name[ARBOR_MODEL_NAME_MAX + 2];
+        const char *p = path + 11;
+        if (!next_segment(&p, name, sizeof name) || !arbor_model_name_valid(name)) {
+            http_reply_error(r, 404, "not_found", "no model named '%s'", path + 12);
+            return;
+        }
+        route_models(r, name, p);
+        return;
+    }
+    case ROUTE_STATIC:
+        if (http_method_is(r, "GET") || http_method_is(r, "HEAD"))
+            route_static(r, path);
+        else
+            http_method_not_allowed(r, "GET, HEAD");
+        return;
+    default: http_reply_error(r, 404, "not_found", "no such endpoint: %s", path); return;
+    }
+}
+
+/* ---- the access log ---- */
+
+static void log_request(const arbor_server *s, const http_req *r, double ms)
+{
+    char when[32];
+    time_t now = time(NULL);
+    struct tm tm;
+    gmtime_r(&now, &tm);
+    strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%SZ", &tm);
+    if (s->config.log_json) {
+        cJSON *o = cJSON_CreateObject();
+        cJSON_AddStringToObject(o, "time", when);
+        cJSON_AddStringToObject(o, "id", r->id);
+        cJSON_AddStringToObject(o, "method", r->method);
+        cJSON_AddStringToObject(o, "path", r->url != NULL ? r->url : "");
+        cJSON_AddNumberToObject(o, "status", r->status);
+        cJSON_AddNumberToObject(o, "bytes", (double)r->bytes);
+        cJSON_AddNumberToObject(o, "ms", round(ms * 1000.0) / 1000.0);
+        char *line = cJSON_PrintUnformatted(o);
+        if (line != NULL)
+            fprintf(stderr, "%s\n", line);
+        free(line);
+        cJSON_Delete(o);
+    } else {
+        fprintf(stderr, "%s %s %s %s %u %" PRIu64 "B %.1fms\n", when, r->id, r->method, r->url ? r->url : "",
+                r->status, r->bytes, ms);
+    }
+}
+
+/* ---- libmicrohttpd callbacks ---- */
+
+/* The first thing libmicrohttpd knows of a request: its raw URI (query
+ * string included, for the log). Creates the record. */
+static void *on_uri(void *cls, const char *uri, struct MHD_Connection *conn)
+{
+    (void)conn;
+    arbor_server *s = cls;
+    http_req *r = calloc(1, sizeof *r);
+    if (r == NULL)
+        return NULL;
+    r->srv = s;
+    atomic_init(&r->refs, 1);
+    r->url = strdup(uri);
+    r->start_ms = arbor_now_ms();
+    pthread_mutex_lock(&s->lock);
+    uint64_t id = ++s->next_request_id;
+    pthread_mutex_unlock(&s->lock);
+    snprintf(r->id, sizeof r->id, "%" PRIx64 "-%" PRIu64, (uint64_t)s->start_ms & 0xffff, id);
+    return r;
+}
+
+static void on_completed(void *cls, struct MHD_Connection *conn, void **con_cls,
+                         enum MHD_RequestTerminationCode toe)
+{
+    (void)conn;
+    (void)toe;
+    arbor_server *s = cls;
+    http_req *r = *con_cls;
+    if (r == NULL)
+        return;
+    double ms = arbor_now_ms() - r->start_ms;
+    if (r->status != 0) {
+        metrics_request(&s->metrics, r->route, r->status, ms / 1e3);
+        log_request(s, r, ms);
+    }
+    *con_cls = NULL;
+    http_req_release(r);
+}
+
+static enum MHD_Result queue_reply(http_req *r)
+{
+    if (r->response == NULL)
+        http_reply_error(r, 500, "internal", "no answer was made");
+    if (r->response == NULL)
+        return MHD_NO;
+    MHD_add_response_header(r->response, "X-Request-Id", r->id);
+    enum MHD_Result ok = MHD_queue_response(r->conn, r->status, r->response);
+    MHD_destroy_response(r->response);
+    r->response = NULL;
+    return ok;
+}
+
+/* Headers have arrived: what the body may be, and whether to refuse it now. */
+static bool on_headers(http_req *r, const char *method)
+{
+    snprintf(r->method, sizeof r->method, "%s", method);
+    const char *path = r->url;
+    char *q = strchr(r->url, '?');
+    if (q != NULL)
+        *q = '\0';
+    r->route = classify(path);
+    if (q != NULL)
+        *q = '?';
+    bool upload = r->route == ROUTE_MODEL && (http_method_is(r, "PUT") || http_method_is(r, "POST"));
+    r->limit = upload ? r->srv->config.max_upload : r->srv->config.max_body;
+    /* Refuse an unauthorised upload before its body, not after storing it. */
+    if (upload && !http_may_write(r))
+        return false;
+    const char *length = MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
+    if (length != NULL && strtoull(length, NULL, 10) > r->limit) {
+        http_reply_error(r, 413, "too_large", "the body of %s bytes is over the limit of %zu bytes", length,
+                         r->limit);
+        return false;
+    }
+    return true;
+}
+
+static void on_body(http_req *r, const char *data, size_t size)
+{
+    if (r->too_large || r->response != NULL)
+        return;
+    if (size > r->limit - r->body_len) {
+        r->too_large = true;
+        return;
+    }
+    if (r->route == ROUTE_MODEL) {
+        if (!models_post_data(r, data, size))
+            r->too_large = r->response == NULL;
+        return;
+    }
+    if (r->body_len + size > r->body_cap) {
+        size_t cap = r->body_cap ? r->body_cap : 4096;
+        while (cap < r->body_len + size)
+            cap *= 2;
+        char *b = realloc(r->body, cap);
+        if (b == NULL) {
+            http_reply_error(r, 507, "insufficient_memory", "out of memory reading the body");
+            return;
+        }
+        r->body = b;
+        r->body_cap = cap;
+    }
+    memcpy(r->body + r->body_len, data, size);
+    r->body_len += size;
+}
+
+static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const char *url, const char *method,
+                                  const char *version, const char *upload_data, size_t *upload_data_size,
+                                  void **con_cls)
+{
+    (void)cls;
+    (void)version;
+    http_req *r = *con_cls;
+    if (r == NULL)
+        return MHD_NO;
+    if (r->conn == NULL) {
+        r->conn = conn;
+        if (!on_headers(r, method))
+            return queue_reply(r);
+        return MHD_YES;
+    }
+    if (*upload_data_size > 0) {
+        on_body(r, upload_data, *upload_data_size);
+        *upload_data_size = 0;
+        return MHD_YES;
+    }
+    if (r->suspended) {
+        /* Resumed: a worker has replied. */
+        r->suspended = false;
+        return queue_reply(r);
+    }
+    if (r->response == NULL) {
+        if (r->too_large)
+            http_reply_error(r, 413, "too_large", "the body is over the limit of %zu bytes", r->limit);
+        else
+            dispatch(r, url);
+    }
+    if (r->suspended)
+        return MHD_YES;
+    return queue_reply(r);
+}
+
+/* Decodes %XX in place, as libmicrohttpd's own unescaper does, except that a
+ * %00 leaves the whole string undecoded: a NUL would cut the path short and
+ * make a different file out of it. */
+static size_t unescape(void *cls, struct MHD_Connection *conn, char *s)
+{
+    (void)cls;
+    (void)conn;
+    if (strstr(s, "%00") != NULL)
+        return strlen(s);
+    return MHD_http_unescape(s);
+}
+
+/* ---- the frame-timeout reaper ---- */
+
+static void *reaper_run(void *arg)
+{
+    arbor_server *s = arg;
+    pthread_mutex_lock(&s->lock);
+    while (!s->stopping) {
+        struct timespec until;
+        clock_gettime(CLOCK_REALTIME, &until);
+        until.tv_nsec += REAPER_PERIOD_MS * 1000000L;
+        if (until.tv_nsec >= 1000000000L) {
+            until.tv_sec++;
+            until.tv_nsec -= 1000000000L;
+        }
+        pthread_cond_timedwait(&s->reaper_wake, &s->lock, &until);
+        if (!s->stopping) {
+            pthread_mutex_unlock(&s->lock);
+            frames_reap(s, arbor_now_ms());
+            pthread_mutex_lock(&s->lock);
+        }
+    }
+    pthread_mutex_unlock(&s->lock);
+    return NULL;
+}
+
+/* ---- start and stop ---- */
+
+static bool bind_address(const char *bind, int port, struct sockaddr_storage *ss, bool *loopback, arbor_err *e)
+{
+    memset(ss, 0, sizeof *ss);
+    struct sockaddr_in *v4 = (struct sockaddr_in *)ss;
+    struct sockaddr_in6 *v6 = (struct sockaddr_in6 *)ss;
+    if (inet_pton(AF_INET, bind, &v4->sin_addr) == 1) {
+        v4->sin_family = AF_INET;
+        v4->sin_port = htons((uint16_t)port);
+        *loopback = (ntohl(v4->sin_addr.s_addr) >> 24) == 127;
+        return true;
+    }
+    if (inet_pton(AF_INET6, bind, &v6->sin6_addr) == 1) {
+        v6->sin6_family = AF_INET6;
+        v6->sin6_port = htons((uint16_t)port);
+        *loopback = IN6_IS_ADDR_LOOPBACK(&v6->sin6_addr);
+        return true;
+    }
+    return arbor_fail(e, ARBOR_ERR_INVALID, "--bind '%s' is not an IPv4 or IPv6 address", bind);
+}
+
+/* libmicrohttpd's own messages would go to stderr unasked; the server's
+ * errors come back through arbor_err instead. */
+static void mhd_quiet(void *cls, const char *fmt, va_list ap)
+{
+    (void)cls;
+    (void)fmt;
+    (void)ap;
+}
+
+/* Whether a port can be bound, to tell "in use" from other failures. */
+static void explain_bind_failure(const struct sockaddr_storage *ss, const char *addr, int port, arbor_err *e)
+{
+    int fd = socket(ss->ss_family, SOCK_STREAM, 0);
+    int err = 0;
+    if (fd >= 0) {
+        int one = 1;
+        setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+        socklen_t len = ss->ss_family == AF_INET ? sizeof(struct sockaddr_in) : sizeof(struct sockaddr_in6);
+        if (bind(fd, (const struct sockaddr *)ss, len) != 0)
+            err = errno;
+        close(fd);
+    }
+    char why[128] = "cannot listen";
+    if (err != 0)
+        strerror_r(err, why, sizeof why);
+    arbor_fail(e, ARBOR_ERR_IO, "cannot listen on %s port %d: %s", addr, port, why);
+}
+
+static bool start_mhd(arbor_server *s, arbor_err *e)
+{
+    const arbor_server_config *c = &s->config;
+    struct sockaddr_storage ss;
+    if (!bind_address(c->bind, c->port, &ss, &s->loopback, e))
+        return false;
+    unsigned flags = MHD_USE_EPOLL_INTERNAL_THREAD | MHD_ALLOW_SUSPEND_RESUME;
+    if (ss.ss_family == AF_INET6)
+        flags |= MHD_USE_IPv6;
+    s->mhd = MHD_start_daemon(
+        flags, (uint16_t)c->port, NULL, NULL, on_request, s, MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&ss,
+        MHD_OPTION_URI_LOG_CALLBACK, on_uri, s, MHD_OPTION_NOTIFY_COMPLETED, on_completed, s,
+        MHD_OPTION_UNESCAPE_CALLBACK, unescape, NULL, MHD_OPTION_EXTERNAL_LOGGER, mhd_quiet, NULL,
+        MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)c->connection_timeout_s, MHD_OPTION_CONNECTION_LIMIT,
+        (unsigned)c->connection_limit, MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)c->per_ip_limit,
+        MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)64 * 1024, MHD_OPTION_END);
+    if (s->mhd == NULL) {
+        explain_bind_failure(&ss, c->bind, c->port, e);
+        return false;
+    }
+    const union MHD_DaemonInfo *info = MHD_get_daemon_info(s->mhd, MHD_DAEMON_INFO_BIND_PORT);
+    s->port = info != NULL && info->port != 0 ? info->port : c->port;
+    return true;
+}
+
+static bool config_check(const arbor_server_config *c, arbor_err *e)
+{
+    if (c->port < 0 || c->port > 65535)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "port must be in 0..65535, not %d", c->port);
+    if (c->threads < 1 || c->queue < 0)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "threads must be >= 1 and queue >= 0");
+    if (c->max_body < 1 || c->max_upload < 1 || c->max_pixels < 1)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "limits must be positive");
+    if (c->connection_limit < 1 || c->per_ip_limit < 1 || c->connection_timeout_s < 1)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "connection limits and timeout must be positive");
+    return true;
+}
+
+arbor_server *arbor_server_start(const arbor_server_config *c, arbor_store *store, arbor_pool *pool,
+                                 arbor_err *e)
+{
+    if (!config_check(c, e))
+        return NULL;
+    arbor_server *s = calloc(1, sizeof *s);
+    if (s == NULL) {
+        arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory starting the server");
+        return NULL;
+    }
+    s->config = *c;
+    s->store = store;
+    s->pool = pool;
+    s->start_ms = arbor_now_ms();
+    s->token = c->token != NULL ? strdup(c->token) : NULL;
+    s->config.token = NULL;
+    metrics_init(&s->metrics);
+    pthread_mutex_init(&s->lock, NULL);
+    pthread_cond_init(&s->idle, NULL);
+    pthread_cond_init(&s->reaper_wake, NULL);
+    s->jobs = jobs_create(pool);
+    bool ok = (c->token == NULL || s->token != NULL) && s->jobs != NULL;
+    if (!ok)
+        arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory starting the server");
+    if (ok)
+        ok = start_mhd(s, e);
+    if (ok && pthread_create(&s->reaper, NULL, reaper_run, s) != 0)
+        ok = arbor_fail(e, ARBOR_ERR_NOMEM, "cannot start the frame-timeout thread");
+    s->reaper_started = ok;
+    if (!ok) {
+        arbor_server_stop(s);
+        return NULL;
+    }
+    return s;
+}
+
+int arbor_server_port(const arbor_server *s)
+{
+    return s->port;
+}
+
+bool arbor_server_writes_forbidden(const arbor_server *s)
+{
+    return s->token == NULL && !s->loopback;
+}
+
+void arbor_server_stop(arbor_server *s)
+{
+    if (s == NULL)
+        return;
+    if (s->mhd != NULL) {
+        MHD_socket listen = MHD_quiesce_daemon(s->mhd);
+        if (listen != MHD_INVALID_SOCKET)
+            close(listen);
+    }
+    pthread_mutex_lock(&s->lock);
+    s->stopping = true;
+    pthread_cond_broadcast(&s->reaper_wake);
+    pthread_mutex_unlock(&s->lock);
+    frames_cancel_all(s);
+    arbor_store_cancel_builds(s->store);
+    if (s->jobs != NULL)
+        jobs_cancel_all(s->jobs);
+    if (s->reaper_started)
+        pthread_join(s->reaper, NULL);
+    /* Cancelled frames and builds answer from the workers; wait for every
+     * suspended connection to be resumed, as libmicrohttpd requires before
+     * it stops. */
+    pthread_mutex_lock(&s->lock);
+    while (s->inflight > 0)
+        pthread_cond_wait(&s->idle, &s->lock);
+    pthread_mutex_unlock(&s->lock);
+    if (s->mhd != NULL)
+        MHD_stop_daemon(s->mhd);
+    jobs_destroy(s->jobs);
+    for (uint32_t i = 0; i < s->npending; i++)
+        free(s->pending[i]);
+    free(s->pending);
+    free(s->token);
+    pthread_cond_destroy(&s->reaper_wake);
+    pthread_cond_destroy(&s->idle);
+    pthread_mutex_destroy(&s->lock);
+    metrics_destroy(&s->metrics);
+    free(s);
+}
