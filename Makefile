@@ -1,7 +1,8 @@
 # arbor - build, test, run, bench.
 #
 #   make            build build/arbord (installs missing dependencies first)
-#   make run        serve/render the models in models/ (see README.md)
+#   make run        start the daemon on models/ and print the URL to open
+#   make loadtest   wrk against a daemon (not part of make test)
 #   make test       every test; last line "N passed, M failed"
 #   make models     regenerate the procedural models in models/ (SIZE=large for big ones)
 #   make bench      the benchmark tables of docs/BENCH.md
@@ -37,7 +38,7 @@ TEST_BIN = $(TEST_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 UNITY    = build/deps/unity/src
 TEST_SUPPORT_OBJ = $(BUILD)/obj/tests/unit/support.o $(BUILD)/obj/unity.o
 
-.PHONY: all deps run test unit models bench bench-embree asan clean
+.PHONY: all deps run test unit models bench bench-embree asan loadtest clean
 # Keep intermediate objects: deleting them would also print "rm ..." after the
 # test summary, which must stay the last line of make test.
 .SECONDARY:
@@ -48,6 +49,7 @@ all: $(BUILD)/arbord
 # Quick and silent when everything is installed; installs what is missing.
 deps:
 	@scripts/deps.sh
+	@scripts/deps-e2e.sh
 
 $(BUILD)/obj/%.o: %.c | deps
 	@mkdir -p $(dir $@)
@@ -74,17 +76,23 @@ $(BUILD)/tests/%: $(BUILD)/obj/tests/unit/%.o $(TEST_SUPPORT_OBJ) $(BUILD)/libar
 
 unit: $(TEST_BIN)
 
-test: $(BUILD)/arbord $(TEST_BIN)
-	@ARBOR_SHARED_MODELS=$(SHARED)/models tests/run.sh $(TEST_BIN)
+# Unity binaries, then the suites that drive the real binary: the CLI, the
+# daemon over HTTP, the viewer in Chromium. Each prints Unity's summary line;
+# tests/run.sh sums them into the one last line.
+SUITES = tests/cli/run.sh tests/http/run.py tests/e2e/run.sh
 
-# Until the daemon exists, the main job renders every model in models/ (shaded, 4 samples per pixel).
+test: $(BUILD)/arbord $(TEST_BIN)
+	@ARBORD=$(abspath $(BUILD)/arbord) ARBOR_SHARED_MODELS=$(SHARED)/models tests/run.sh $(TEST_BIN) $(SUITES)
+
+# The daemon on the repository's models/ and web/ (PORT=8080 by default); Ctrl-C stops it.
+PORT ?= 8080
 run: $(BUILD)/arbord
-	@mkdir -p $(BUILD)/run
-	@for m in models/*.obj; do \
-	    out=$(BUILD)/run/$$(basename $$m .obj).png; \
-	    echo "== $$m -> $$out"; \
-	    $(BUILD)/arbord render --model $$m --mode shaded --spp 4 -o $$out || exit 1; \
-	done
+	@echo "arbord: open http://127.0.0.1:$(PORT)/ (Ctrl-C stops it)"
+	@exec $(BUILD)/arbord serve --port $(PORT)
+
+# wrk against a daemon of its own (tests/load/run.sh; LOAD_SECONDS=30 by default).
+loadtest: $(BUILD)/arbord
+	@ARBORD=$(abspath $(BUILD)/arbord) tests/load/run.sh
 
 # The small models are committed in models/; SIZE=large writes multi-million-triangle
 # versions to build/models-large instead (never committed, not rendered by make run).

@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
-# Runs test binaries (Unity or any program that ends with Unity's summary
-# "N Tests M Failures K Ignored"), shows the output of those that fail, and
-# prints as its last line "N passed, M failed" summed over all of them.
-# A binary that dies without a summary counts as one failure.
+# Runs test programs (Unity binaries, or any program that ends with Unity's
+# summary "N Tests M Failures K Ignored": the CLI, HTTP and browser suites),
+# shows the output of those that fail, and prints as its last line
+# "N passed, M failed, K skipped" summed over all of them. Ignored tests
+# count as skipped, never as passed. A program that dies without a summary
+# counts as one failure.
 set -u
 passed=0
 failed=0
+skipped=0
 for bin in "$@"; do
     log=$(mktemp)
     start=$(date +%s)
-    # Say what is running: the accel tests take minutes and silence looks like a hang.
+    # Say what is running: some suites take minutes and silence looks like a hang.
     echo "run  $(basename "$bin") ..."
     "$bin" >"$log" 2>&1
     rc=$?
@@ -18,21 +21,27 @@ for bin in "$@"; do
     if [ -n "$summary" ]; then
         n=$(echo "$summary" | awk '{print $1}')
         f=$(echo "$summary" | awk '{print $3}')
+        k=$(echo "$summary" | awk '{print $5}')
     else
         n=1
         f=1
+        k=0
     fi
-    [ "$rc" -ne 0 ] && [ "$f" -eq 0 ] && f=1
-    passed=$((passed + n - f))
+    [ "$rc" -ne 0 ] && [ "$f" -eq 0 ] && f=1 && [ "$n" -eq 0 ] && n=1
+    passed=$((passed + n - f - k))
     failed=$((failed + f))
+    skipped=$((skipped + k))
     if [ "$f" -ne 0 ]; then
         echo "FAIL $(basename "$bin") (exit $rc, ${secs}s):"
-        grep -E ':FAIL|Segmentation|Assert|error|rror:' "$log" | head -n 40
+        grep -E ':FAIL|Segmentation|Assert|error|rror:|^not ok' "$log" | head -n 40
         [ -z "$summary" ] && tail -n 20 "$log"
     else
-        echo "ok   $(basename "$bin"): $n tests (${secs}s)"
+        echo "ok   $(basename "$bin"): $n tests, $k skipped (${secs}s)"
+    fi
+    if [ "$k" -ne 0 ]; then
+        grep -E ':IGNORE|SKIP|skipped' "$log" | head -n 10
     fi
     rm -f "$log"
 done
-echo "$passed passed, $failed failed"
+echo "$passed passed, $failed failed, $skipped skipped"
 [ "$failed" -eq 0 ]
