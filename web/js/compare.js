@@ -145,6 +145,13 @@ export class Compare {
     }
 }
 
+/** 1, 10, 100, 1k, 10k, 100k, 1M: log-axis ticks that fit side by side. */
+function compact(v) {
+    if (v >= 1e6) return `${v / 1e6}M`;
+    if (v >= 1e3) return `${v / 1e3}k`;
+    return String(v);
+}
+
 function chartHTML(c, model, ours, embree, study, partial) {
     const withStudy = study && c.study;
     const rows = TREES.map(([a, b]) => {
@@ -193,7 +200,8 @@ function chartHTML(c, model, ours, embree, study, partial) {
     const axisY = top + TREES.length * (groupH + gap) - gap + 4;
     svg += `<line class="axis" x1="${labelW}" y1="${top - 2}" x2="${labelW}" y2="${axisY}"/>`;
     for (const [v, x] of scale.ticks) {
-        svg += `<text class="value" x="${labelW + x}" y="${axisY + 11}" text-anchor="${x === 0 ? 'start' : x >= plotW ? 'end' : 'middle'}">${fmt(v, v < 1 ? 2 : 0)}</text>`;
+        const label = c.log ? compact(v) : fmt(v, v < 1 ? 2 : 0);
+        svg += `<text class="value" x="${labelW + x}" y="${axisY + 11}" text-anchor="${x === 0 ? 'start' : x >= plotW ? 'end' : 'middle'}">${label}</text>`;
     }
     if (e !== null) {
         const x = labelW + scale(e);

@@ -351,6 +351,10 @@ class App {
         this.updateView(() => {});
     }
 
+    viewportAspect(a) {
+        document.getElementById('viewport').style.setProperty('--aspect', String(a));
+    }
+
     pumpAll() {
         for (const p of this.panes) p.pump();
     }
@@ -371,8 +375,9 @@ class App {
             else if (!p.boxes) parts.push(`${name}: loading boxes…`);
             else if (p.boxes.error) {
                 err = true;
-                parts.push(p.boxes.error.status === 404
-                    ? `${name}: the daemon does not serve this tree's boxes (404${p.boxes.error.daemonMessage ? ': ' + p.boxes.error.daemonMessage : ''}).`
+                const st = p.boxes.error.status;
+                parts.push(st === 404 || st === 501
+                    ? `${name}: the daemon does not serve this tree's boxes yet (${st}${p.boxes.error.daemonMessage ? ': ' + p.boxes.error.daemonMessage : ''}).`
                     : `${name}: ${p.boxes.error.words}`);
             } else {
                 const d = p.boxes.data;

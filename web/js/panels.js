@@ -46,7 +46,7 @@ export function renderStats(el, app) {
     html += '<tbody>';
     html += row('Frame ms', (c) => fmt(c.ms), 'frame_ms');
     html += row('Mrays/s', (c) => fmt(c.mrays), 'mrays');
-    html += row('FPS while orbiting', (c) => (c.fps !== null && c.fps !== undefined ? fmt(c.fps, 1)
+    html += row('FPS (orbiting)', (c) => (c.fps !== null && c.fps !== undefined ? fmt(c.fps, 1)
         : c.lastFps ? `<span class="muted">last ${fmt(c.lastFps, 1)}</span>` : '—'), 'fps');
     html += row('Frame size', (c) => c.size || '—', 'size');
     html += `<tr><th colspan="${cols.length + 1}" scope="rowgroup" class="group">Tree${cols.length === 1 ? ': ' + esc(cols[0].name) : ''}</th></tr>`;
@@ -56,9 +56,9 @@ export function renderStats(el, app) {
     html += row('Empty leaves', stat('empty_leaves'), 'empty_leaves');
     html += row('Depth', stat('max_depth'), 'max_depth');
     html += row('Mean leaf depth', stat('mean_leaf_depth'), 'mean_leaf_depth');
-    html += row('Mean triangles per leaf', stat('mean_tris_per_leaf'), 'mean_tris_per_leaf');
-    html += row('Duplication (refs / triangles)', (c) => (c.st && c.st.triangles
-        ? `${fmt(c.st.refs / c.st.triangles, 3)} <span class="muted small">(${fmt(c.st.refs)} / ${fmt(c.st.triangles)})</span>`
+    html += row('Mean tris per leaf', stat('mean_tris_per_leaf'), 'mean_tris_per_leaf');
+    html += row('Refs / triangles', (c) => (c.st && c.st.triangles
+        ? `${fmt(c.st.refs / c.st.triangles, 3)}${cols.length === 1 ? ` <span class="muted small">(${fmt(c.st.refs)} / ${fmt(c.st.triangles)})</span>` : ''}`
         : stat('refs')(c)), 'duplication');
     html += row('Bytes', (c) => (c.st ? fmtBytes(c.st.bytes) : stat('bytes')(c)), 'bytes');
     html += row('SAH cost', stat('sah_cost'), 'sah_cost');
@@ -101,7 +101,10 @@ export function renderRay(el, app) {
         return;
     }
     if (r.error) {
-        el.innerHTML = `<p class="small">${where}</p><p class="error" role="alert">${esc(r.error.words || r.error.message)}</p>`;
+        const st = r.error.status;
+        const missing = st === 404 || st === 501
+            ? `<p class="muted small">This daemon does not trace single rays yet (<code>POST /api/ray</code> answered ${st}); the heat frame still shows each pixel's cost.</p>` : '';
+        el.innerHTML = `<p class="small">${where}</p><p class="error" role="alert">${esc(r.error.words || r.error.message)}</p>${missing}`;
         return;
     }
     const d = r.data, steps = d.steps || [], counts = d.counts || {};

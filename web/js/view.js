@@ -98,6 +98,7 @@ export class Pane {
     setAspect() {
         const [W, H] = this.app.state.res;
         this.frame.style.aspectRatio = `${W} / ${H}`;
+        this.app.viewportAspect(W / H);
     }
 
     /** Asks for whatever frame the view wants now, if it can. */
