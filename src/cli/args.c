@@ -26,6 +26,16 @@ bool cli_once(const char *cmd, const char *opt, const char **slot, const char *v
     return true;
 }
 
+bool cli_print_json(cJSON *o)
+{
+    char *text = o != NULL ? cJSON_PrintUnformatted(o) : NULL;
+    if (text != NULL)
+        puts(text);
+    free(text);
+    cJSON_Delete(o);
+    return text != NULL;
+}
+
 bool cli_int(const char *cmd, const char *opt, const char *s, long lo, long hi, int *out)
 {
     char *end;

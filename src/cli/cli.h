@@ -6,6 +6,7 @@
 #ifndef ARBOR_CLI_H
 #define ARBOR_CLI_H
 
+#include <cjson/cJSON.h>
 #include <stdbool.h>
 
 int cmd_serve(int argc, char **argv);
@@ -20,6 +21,9 @@ const char *cli_value(const char *cmd, int argc, char **argv, int *i);
 /* For an option given at most once (--model, -o): stores value in *slot,
  * or prints "arbord CMD: OPT given twice ('a' and 'b')" and returns false. */
 bool cli_once(const char *cmd, const char *opt, const char **slot, const char *value);
+/* Prints o (a report.h object, or NULL when making it ran out of memory) on
+ * one line of stdout and frees it; false for NULL or out of memory. */
+bool cli_print_json(cJSON *o);
 /* Parse a whole number / a finite number in [lo, hi]; prints the error. */
 bool cli_int(const char *cmd, const char *opt, const char *s, long lo, long hi, int *out);
 bool cli_float(const char *cmd, const char *opt, const char *s, double lo, double hi, float *out);

@@ -7,7 +7,6 @@
  * Results go to stdout as an md or csv table, or JSON lines in the one
  * encoding of include/arbor/report.h; progress and warnings to stderr.
  */
-#include <cjson/cJSON.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -31,11 +30,6 @@ typedef struct {
     bench_format format;
     bool parse;
 } bench_args;
-
-typedef struct {
-    arbor_bench_row *rows;
-    size_t n, cap;
-} row_list;
 
 static void usage(FILE *out)
 {
@@ -79,47 +73,23 @@ static void check_hits(const arbor_bench_row *rows, size_t n)
     }
 }
 
-/* Loads the model and appends its rows to out. */
-static bool bench_model(const arbor_bench_opts *o, const char *path, row_list *out, arbor_err *e)
+/* Loads the model and measures it into rows (arbor_bench_row_count(o) of them). */
+static bool bench_model(const arbor_bench_opts *o, const char *path, arbor_bench_row *rows, arbor_err *e)
 {
     const char *model = base_name(path);
-    size_t n = arbor_bench_row_count(o);
-    if (out->n + n > out->cap) {
-        size_t cap = out->cap ? 2 * out->cap : 16;
-        while (cap < out->n + n)
-            cap *= 2;
-        arbor_bench_row *grown = realloc(out->rows, cap * sizeof *grown);
-        if (grown == NULL)
-            return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for the results");
-        out->rows = grown;
-        out->cap = cap;
-    }
     arbor_mesh mesh;
     fprintf(stderr, "bench: %s: load\n", model);
     if (!arbor_load_model(path, &mesh, e))
         return false;
     fprintf(stderr, "bench: %s: %u triangles\n", model, mesh.ntris);
-    bool ok = arbor_bench_mesh(model, &mesh, o, out->rows + out->n, e);
-    if (ok) {
-        check_hits(out->rows + out->n, n);
-        out->n += n;
-    }
+    bool ok = arbor_bench_mesh(model, &mesh, o, rows, e);
+    if (ok)
+        check_hits(rows, arbor_bench_row_count(o));
     arbor_mesh_free(&mesh);
     return ok;
 }
 
 /* ---- output ---- */
-
-/* Prints o on one line and frees it; false when out of memory. */
-static bool print_json_object(cJSON *o)
-{
-    char *text = o != NULL ? cJSON_PrintUnformatted(o) : NULL;
-    if (text != NULL)
-        puts(text);
-    free(text);
-    cJSON_Delete(o);
-    return text != NULL;
-}
 
 /* Prints one cell of a table row: csv cells are comma-separated, md cells
  * framed by "| ". */
@@ -181,20 +151,20 @@ static bool print_table_header(const arbor_bench_row *first, bool ratios, bool c
 }
 
 /* False when a JSON object could not be made (out of memory). */
-static bool print_rows(const bench_args *a, const row_list *rows)
+static bool print_rows(const bench_args *a, const arbor_bench_row *rows, size_t n)
 {
     bool ratios = a->opts.embree;
     if (a->format == FORMAT_JSON) {
-        for (size_t i = 0; i < rows->n; i++)
-            if (!print_json_object(arbor_report_bench_row(&rows->rows[i], ratios)))
+        for (size_t i = 0; i < n; i++)
+            if (!cli_print_json(arbor_report_bench_row(&rows[i], ratios)))
                 return false;
         return true;
     }
     bool csv = a->format == FORMAT_CSV;
-    if (rows->n > 0 && !print_table_header(&rows->rows[0], ratios, csv))
+    if (n > 0 && !print_table_header(&rows[0], ratios, csv))
         return false;
-    for (size_t i = 0; i < rows->n; i++)
-        print_table_row(&rows->rows[i], ratios, csv);
+    for (size_t i = 0; i < n; i++)
+        print_table_row(&rows[i], ratios, csv);
     return true;
 }
 
@@ -217,7 +187,7 @@ static int run_parse(const bench_args *a)
             return 1;
         }
         if (a->format == FORMAT_JSON) {
-            if (!print_json_object(arbor_report_parse_timing(name, &t))) {
+            if (!cli_print_json(arbor_report_parse_timing(name, &t))) {
                 fprintf(stderr, "arbord bench: out of memory\n");
                 return 1;
             }
@@ -344,18 +314,23 @@ int cmd_bench(int argc, char **argv)
         return 1;
     }
     a.opts.row_done = report_progress;
-    row_list rows = {NULL, 0, 0};
+    size_t per_model = arbor_bench_row_count(&a.opts);
+    arbor_bench_row *rows = calloc((size_t)a.nmodels * per_model, sizeof *rows);
     int status = 0;
+    if (rows == NULL) {
+        fprintf(stderr, "arbord bench: out of memory for the results\n");
+        status = 1;
+    }
     for (int i = 0; i < a.nmodels && status == 0; i++)
-        if (!bench_model(&a.opts, a.models[i], &rows, &err)) {
+        if (!bench_model(&a.opts, a.models[i], rows + (size_t)i * per_model, &err)) {
             fprintf(stderr, "arbord bench: %s: %s\n", a.models[i], err.msg);
             status = 1;
         }
-    if (status == 0 && !print_rows(&a, &rows)) {
+    if (status == 0 && !print_rows(&a, rows, (size_t)a.nmodels * per_model)) {
         fprintf(stderr, "arbord bench: out of memory\n");
         status = 1;
     }
-    free(rows.rows);
+    free(rows);
     arbor_pool_destroy(a.opts.pool);
     return status;
 }

@@ -2,9 +2,7 @@
  * cmd_stats.c - arbord stats: build trees over a model and print their
  * statistics, one row (or one JSON object per line) per kind and builder.
  */
-#include <cjson/cJSON.h>
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
 
 #include "arbor/accel.h"
@@ -20,19 +18,6 @@ static void usage(FILE *out)
             "  --builder   spatial, median, mean, sah or all (default all)\n"
             "  --threads N build threads; 0 = one per core (default 0)\n"
             "  --json      one JSON object per line instead of a table\n");
-}
-
-/* One JSON object on one line, in report.h's encoding; false when out of memory. */
-static bool print_json(const char *model, const arbor_mesh *m, arbor_accel_kind kind, arbor_builder b,
-                       const arbor_tree_stats *s)
-{
-    cJSON *o = arbor_report_tree_stats(model, m->ntris, kind, b, s);
-    char *text = o != NULL ? cJSON_PrintUnformatted(o) : NULL;
-    if (text != NULL)
-        puts(text);
-    free(text);
-    cJSON_Delete(o);
-    return text != NULL;
 }
 
 static void print_header(void)
@@ -127,7 +112,8 @@ int cmd_stats(int argc, char **argv)
             arbor_accel_stats(tree, &s);
             if (!json)
                 print_row((arbor_accel_kind)k, (arbor_builder)b, &s);
-            else if (!print_json(model, &mesh, (arbor_accel_kind)k, (arbor_builder)b, &s))
+            else if (!cli_print_json(arbor_report_tree_stats(model, mesh.ntris, (arbor_accel_kind)k,
+                                                             (arbor_builder)b, &s)))
                 status = 1;
             arbor_accel_free(tree);
             if (status != 0) {
