@@ -19,6 +19,7 @@ export class Uploader {
     constructor(app) {
         this.app = app;
         this.xhr = null;
+        $('upload-button').addEventListener('click', () => $('file-input').click());
         $('file-input').addEventListener('change', (e) => {
             const files = [...e.target.files];
             e.target.value = '';

@@ -330,7 +330,9 @@ export class Pane {
             for (const box of list.slice(0, 50)) rects.push(projectedRect(cam, box));
         }
         if (this.ray && this.ray.data) {
-            const steps = this.ray.data.steps || [];
+            // steps carry their box as {box: {min, max}} (API.md); accept a flat {min, max} too
+            const steps = (this.ray.data.steps || []).map((s) => ({ ...s, ...(s.box || {}) }))
+                .filter((s) => Array.isArray(s.min) && Array.isArray(s.max));
             drawBoxes(ctx, cam, steps, sx, sy, (s) => (s.leaf
                 ? { colour: s.tris > 0 ? 'rgba(255,150,40,.95)' : 'rgba(255,220,120,.6)', width: 2 * lw }
                 : { colour: 'rgba(120,200,255,.55)', width: 1 * lw }));
