@@ -34,6 +34,7 @@ typedef struct {
     uint64_t max_upload;       /* model uploads, and their decompressed size */
     double frame_timeout_s;    /* 0: none */
     const char *web_dir;       /* static files */
+    const char *upload_dir;    /* where uploaded models are written (the first --models folder) */
     const char *token;         /* bearer token for state changes, or NULL */
     bool log_json;             /* access log as JSON lines */
     int connection_limit;      /* open connections at most */

@@ -86,12 +86,19 @@ void arbor_store_destroy(arbor_store *s);
 /* True for names of 1..64 characters from [A-Za-z0-9._-], not "." or "..". */
 bool arbor_model_name_valid(const char *name);
 
+/* How a model is added. */
+enum {
+    ARBOR_ADD_REPLACE = 1,   /* an existing model of that name is replaced, not refused */
+    ARBOR_ADD_UPLOADED = 2   /* its file was written by the daemon (an upload), so deleting it goes */
+};
+
 /* Adds a model made of *mesh (moved into the store on success: *mesh is left
  * empty; on failure it is untouched). `file` is where it came from. An
- * existing name fails with ARBOR_ERR_EXISTS unless replace is true, in which
- * case the old model is detached (frames using it finish safely) and the new
- * one takes the next version number. *version gets the model's version. */
-bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, arbor_mesh *mesh, bool replace,
+ * existing name fails with ARBOR_ERR_EXISTS unless flags has
+ * ARBOR_ADD_REPLACE, in which case the old model is detached (frames using it
+ * finish safely) and the new one takes the next version number. *version
+ * (may be NULL) gets the model's version. */
+bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, arbor_mesh *mesh, unsigned flags,
                            uint64_t *version, arbor_err *e);
 /* Detaches a model; ARBOR_ERR_NOT_FOUND when there is none of that name. */
 bool arbor_store_remove_model(arbor_store *s, const char *name, arbor_err *e);
@@ -108,6 +115,7 @@ void arbor_model_release(arbor_model *m);
 const char *arbor_model_name(const arbor_model *m);
 const char *arbor_model_file(const arbor_model *m);
 uint64_t arbor_model_version(const arbor_model *m);
+bool arbor_model_uploaded(const arbor_model *m);
 uint64_t arbor_model_bytes(const arbor_model *m);
 const arbor_mesh *arbor_model_mesh(const arbor_model *m);
 void arbor_model_tree_info(arbor_store *s, arbor_model *m, arbor_accel_kind kind, arbor_builder builder,
@@ -131,6 +139,9 @@ const arbor_accel *arbor_tree_accel(const arbor_tree *t);
 arbor_model *arbor_tree_model(const arbor_tree *t);
 
 void arbor_store_usage_of(arbor_store *s, arbor_store_usage *u);
+/* Sets the build callback after creation (the server, made after the store,
+ * counts builds for its metrics). */
+void arbor_store_on_build(arbor_store *s, arbor_store_build_fn fn, void *user);
 
 /* Asks every build in progress to stop (shutdown): their waiters are
  * called soon with ARBOR_ERR_CANCELLED. Does not wait. */

@@ -330,7 +330,7 @@ static void load_one(arbor_server *server, arbor_store *store, const char *dir, 
         uint32_t ntris = mesh.ntris;
         for (uint32_t w = 0; w < mesh.nwarnings; w++)
             fprintf(stderr, "arbord: %s: warning: %s\n", path, mesh.warnings[w]);
-        if (!arbor_store_add_model(store, name, real != NULL ? real : path, &mesh, false, NULL, &err)) {
+        if (!arbor_store_add_model(store, name, real != NULL ? real : path, &mesh, 0, NULL, &err)) {
             fprintf(stderr, "arbord: skipping %s: %s\n", path, err.msg);
             arbor_mesh_free(&mesh);
         } else {
@@ -427,6 +427,7 @@ int cmd_serve(int argc, char **argv)
         }
         a.server.web_dir = web_default;
     }
+    a.server.upload_dir = a.model_dirs[0];
     char *token = NULL;
     if (a.token_file != NULL && !read_token(a.token_file, &token))
         return 2;

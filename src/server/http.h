@@ -70,6 +70,7 @@ struct http_req {
     char *body;
     size_t body_len, body_cap, limit;
     bool too_large;
+    bool upload;                     /* a PUT or POST of a model: the body goes to models.c */
     struct MHD_PostProcessor *post;
     struct upload_parts *parts;      /* multipart uploads (models.c) */
 

@@ -184,10 +184,10 @@ static void expose_frames(FILE *f, const http_metrics *m, const metrics_gauges *
                 (unsigned long long)m->rays[i]);
     header(f, "arbor_frames_total", "counter", "Frames rendered to the end.");
     fprintf(f, "arbor_frames_total %llu\n", (unsigned long long)m->frames);
-    header(f, "arbor_frames_queued", "gauge", "Frames admitted that have not started rendering.");
+    header(f, "arbor_frames_queued", "gauge", "Frames admitted beyond those rendering: waiting for a worker or a tree.");
     fprintf(f, "arbor_frames_queued %u\n", g->frames_waiting);
-    header(f, "arbor_frames_running", "gauge", "Frames rendering now.");
-    fprintf(f, "arbor_frames_running %u\n", g->frames_rendering);
+    header(f, "arbor_frames_rendering", "gauge", "Frames rendering now (at most one per worker).");
+    fprintf(f, "arbor_frames_rendering %u\n", g->frames_rendering);
     header(f, "arbor_frames_rejected_total", "counter", "Frames refused because the queue was full.");
     fprintf(f, "arbor_frames_rejected_total %llu\n", (unsigned long long)m->frames_rejected);
     header(f, "arbor_frames_cancelled_total", "counter", "Frames cancelled, by reason.");

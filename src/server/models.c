@@ -10,6 +10,7 @@
  * against, and the loaders' containment check keeps them in it.
  */
 #include <dirent.h>
+#include <limits.h>
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -189,37 +190,146 @@ bool models_post_data(http_req *r, const char *data, size_t size)
 typedef struct {
     http_req *http;
     char name[ARBOR_MODEL_NAME_MAX + 1];
-    char path[256];
+    char path[PATH_MAX];
     bool replace;
     bool replaced;
 } upload_job;
 
-/* A PUT body's format, from its first bytes (decompressed when gzip): the
- * file name the loaders dispatch on. */
-static bool name_put_body(upload_parts *u, const char *name, char *err, size_t errcap)
+/* What a model file holds, read through gzip when it is compressed:
+ * whether it is PLY, and whether it is text at all (an OBJ has no NUL in
+ * its first bytes, a PLY starts "ply"). Its decompressed size is counted up
+ * to max + 1, so a small .gz that inflates past the limit is caught here,
+ * before any parsing. Replies and returns false when the file is unusable. */
+static bool sniff_model(http_req *r, const char *path, uint64_t max, bool *ply, bool *gz)
 {
-    char from[256], to[256], head[4] = {0};
-    snprintf(from, sizeof from, "%s/upload.bin", u->dir);
-    gzFile g = gzopen(from, "rb");
-    bool gz = false;
-    int got = -1;
-    if (g != NULL) {
-        gz = gzdirect(g) == 0;
-        got = gzread(g, head, sizeof head);
-        gzclose(g);
-    }
-    if (got < 0) {
-        snprintf(err, errcap, "cannot read the uploaded file (corrupt gzip?)");
+    gzFile g = gzopen(path, "rb");
+    if (g == NULL) {
+        http_reply_error(r, 507, "insufficient_memory", "cannot read the stored upload");
         return false;
     }
-    bool ply = got == 4 && memcmp(head, "ply", 3) == 0 && (head[3] == '\n' || head[3] == '\r');
-    snprintf(u->model, sizeof u->model, "%s.%s%s", name, ply ? "ply" : "obj", gz ? ".gz" : "");
-    snprintf(to, sizeof to, "%s/%s", u->dir, u->model);
-    if (rename(from, to) != 0) {
-        snprintf(err, errcap, "cannot rename the uploaded file");
+    *gz = gzdirect(g) == 0;
+    char buf[65536];
+    uint64_t total = 0;
+    int got;
+    bool text = true;
+    *ply = false;
+    while ((got = gzread(g, buf, sizeof buf)) > 0 && total <= max) {
+        if (total == 0) {
+            *ply = got >= 4 && memcmp(buf, "ply", 3) == 0 && (buf[3] == '\n' || buf[3] == '\r');
+            text = *ply || memchr(buf, '\0', (size_t)(got < 512 ? got : 512)) == NULL;
+        }
+        total += (uint64_t)got;
+    }
+    bool broken = got < 0;
+    gzclose(g);
+    if (broken) {
+        http_reply_error(r, 400, "bad_request", "the upload is not valid gzip data");
+        return false;
+    }
+    if (total > max) {
+        http_reply_error(r, 413, "too_large", "the upload decompresses to more than the limit of %llu bytes",
+                         (unsigned long long)max);
+        return false;
+    }
+    if (!text) {
+        http_reply_error(r, 415, "unsupported_media_type", "the upload is neither OBJ nor PLY (nor gzip of one)");
         return false;
     }
     return true;
+}
+
+/* Names a PUT body by its format, the name the loaders dispatch on. */
+static bool name_put_body(http_req *r, const char *name)
+{
+    upload_parts *u = r->parts;
+    char from[sizeof u->dir + 16], to[sizeof u->dir + PART_NAME_MAX + 2];
+    snprintf(from, sizeof from, "%s/upload.bin", u->dir);
+    bool ply, gz;
+    if (!sniff_model(r, from, r->srv->config.max_upload, &ply, &gz))
+        return false;
+    snprintf(u->model, sizeof u->model, "%s.%s%s", name, ply ? "ply" : "obj", gz ? ".gz" : "");
+    snprintf(to, sizeof to, "%s/%s", u->dir, u->model);
+    if (rename(from, to) != 0) {
+        http_reply_error(r, 507, "insufficient_memory", "cannot rename the stored upload");
+        return false;
+    }
+    return true;
+}
+
+/* ---- saving into the models folder ---- */
+
+/* Copies src to dir/name through a temporary file and a rename, so that a
+ * daemon reading the folder never sees half a file. */
+static bool save_file(const char *src, const char *dir, const char *name, char *err, size_t errcap)
+{
+    char tmp[PATH_MAX], dst[PATH_MAX];
+    snprintf(tmp, sizeof tmp, "%s/.%s.XXXXXX", dir, name);
+    snprintf(dst, sizeof dst, "%s/%s", dir, name);
+    int fd = mkstemp(tmp);
+    FILE *in = fopen(src, "rb"), *out = fd >= 0 ? fdopen(fd, "wb") : NULL;
+    bool ok = in != NULL && out != NULL;
+    char buf[65536];
+    size_t n;
+    while (ok && (n = fread(buf, 1, sizeof buf, in)) > 0)
+        ok = fwrite(buf, 1, n, out) == n;
+    ok = ok && !ferror(in);
+    if (in != NULL)
+        fclose(in);
+    if (out != NULL)
+        ok = (fclose(out) == 0) && ok;
+    else if (fd >= 0)
+        close(fd);
+    ok = ok && rename(tmp, dst) == 0;
+    if (!ok) {
+        int errnum = errno;
+        if (fd >= 0)
+            unlink(tmp);
+        char why[128] = "write failed";
+        strerror_r(errnum, why, sizeof why);
+        snprintf(err, errcap, "cannot save %s in %s: %s", name, dir, why);
+    }
+    return ok;
+}
+
+static const char *const model_exts[] = {".obj", ".ply", ".obj.gz", ".ply.gz"};
+
+/* The model's extension, from the stored part's name. */
+static const char *model_ext(const char *file)
+{
+    for (int i = 3; i >= 0; i--)
+        if (ends_with(file, model_exts[i]))
+            return model_exts[i];
+    return ".obj";
+}
+
+/* Saves every part of the upload into dir: the model as NAME.EXT (the
+ * other extensions of NAME removed, so the folder holds one file of that
+ * name), the material libraries under their own names. */
+static bool save_upload(const upload_parts *u, const char *dir, const char *name, char *file, size_t cap,
+                        char *err, size_t errcap)
+{
+    DIR *d = opendir(u->dir);
+    bool ok = d != NULL;
+    struct dirent *ent;
+    char src[PATH_MAX], final[PART_NAME_MAX + 16];
+    const char *ext = model_ext(u->model);
+    snprintf(final, sizeof final, "%s%s", name, ext);
+    while (ok && (ent = readdir(d)) != NULL) {
+        if (ent->d_name[0] == '.')
+            continue;
+        bool is_model = strcmp(ent->d_name, u->model) == 0;
+        snprintf(src, sizeof src, "%s/%s", u->dir, ent->d_name);
+        ok = save_file(src, dir, is_model ? final : ent->d_name, err, errcap);
+    }
+    if (d != NULL)
+        closedir(d);
+    for (int i = 0; ok && i < 4; i++)
+        if (strcmp(model_exts[i], ext) != 0) {
+            snprintf(src, sizeof src, "%s/%s%s", dir, name, model_exts[i]);
+            unlink(src);
+        }
+    snprintf(file, cap, "%s/%s", dir, final);
+    return ok;
 }
 
 /* Loader messages name the temporary path; people know the file by its
@@ -244,12 +354,14 @@ static void upload_run(void *ctx, uint32_t task)
     arbor_mesh_init(&mesh);
     arbor_err err;
     arbor_err_clear(&err);
-    uint64_t version = 0;
-    bool ok = arbor_load_model_capped(j->path, s->config.max_upload, &mesh, &err);
-    if (!ok) {
+    char file[PATH_MAX], why[PATH_MAX + 128];
+    unsigned flags = ARBOR_ADD_UPLOADED | (j->replace ? ARBOR_ADD_REPLACE : 0);
+    if (!arbor_load_model_capped(j->path, s->config.max_upload, &mesh, &err)) {
         strip_dir(err.msg, r->parts->dir);
         http_reply_error(r, 400, "bad_request", "%s", err.msg);
-    } else if (!arbor_store_add_model(s->store, j->name, "(upload)", &mesh, j->replace, &version, &err)) {
+    } else if (!save_upload(r->parts, s->config.upload_dir, j->name, file, sizeof file, why, sizeof why)) {
+        http_reply_error(r, 507, "insufficient_storage", "%s", why);
+    } else if (!arbor_store_add_model(s->store, j->name, file, &mesh, flags, NULL, &err)) {
         http_reply_err(r, &err);
     } else {
         arbor_model *m = arbor_store_acquire_model(s->store, j->name);
@@ -289,15 +401,17 @@ static void upload(http_req *r, const char *name)
         return;
     }
     u->out = NULL;
-    char err[256];
-    if (http_method_is(r, "PUT") && !name_put_body(u, name, err, sizeof err)) {
-        http_reply_error(r, 400, "bad_request", "%s", err);
+    if (http_method_is(r, "PUT") && !name_put_body(r, name))
         return;
-    }
     if (u->model[0] == '\0') {
         http_reply_error(r, 400, "bad_request", "the upload has no .obj, .ply, .obj.gz or .ply.gz file part");
         return;
     }
+    char part[sizeof u->dir + PART_NAME_MAX + 2];
+    snprintf(part, sizeof part, "%s/%s", u->dir, u->model);
+    bool ply, gz;
+    if (http_method_is(r, "POST") && !sniff_model(r, part, r->srv->config.max_upload, &ply, &gz))
+        return;
     arbor_model *old = arbor_store_acquire_model(r->srv->store, name);
     bool exists = old != NULL;
     arbor_model_release(old);
@@ -332,11 +446,20 @@ static void delete_model(http_req *r, const char *name)
 {
     if (!http_may_write(r))
         return;
+    arbor_model *m = arbor_store_acquire_model(r->srv->store, name);
+    char file[PATH_MAX] = "";
+    if (m != NULL && arbor_model_uploaded(m))
+        snprintf(file, sizeof file, "%s", arbor_model_file(m));
+    arbor_model_release(m);
     arbor_err err;
     if (!arbor_store_remove_model(r->srv->store, name, &err)) {
         http_reply_err(r, &err);
         return;
     }
+    /* An uploaded model's file goes with it, or the next start would load it
+     * again; a model the operator put in the folder keeps its file. */
+    if (file[0] != '\0')
+        unlink(file);
     cJSON *o = cJSON_CreateObject();
     cJSON_AddStringToObject(o, "deleted", name);
     http_reply_json(r, 200, o);

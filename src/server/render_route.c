@@ -81,15 +81,16 @@ static void list_remove(arbor_server *s, render_req *rr)
     s->nframes--;
 }
 
+/* The pool shares its workers among every frame submitted, so "rendering"
+ * is as many of them as there are workers, and the rest wait: the same
+ * count admission uses (threads + queue). */
 void frames_count(arbor_server *s, uint32_t *waiting, uint32_t *rendering)
 {
-    *waiting = *rendering = 0;
-    for (render_req *rr = s->frames; rr != NULL; rr = rr->next) {
-        if (rr->state == RR_RENDERING && rr->frame != NULL && arbor_frame_started(rr->frame))
-            (*rendering)++;
-        else
-            (*waiting)++;
-    }
+    uint32_t submitted = 0;
+    for (render_req *rr = s->frames; rr != NULL; rr = rr->next)
+        submitted += rr->state == RR_RENDERING && rr->frame != NULL;
+    *rendering = submitted < (uint32_t)s->config.threads ? submitted : (uint32_t)s->config.threads;
+    *waiting = s->nframes - *rendering;
 }
 
 /* ---- answering ---- */
@@ -115,6 +116,17 @@ static void reply_cancelled(render_req *rr)
  * set `answered` and taken rr off the list. */
 static void rr_finish(render_req *rr)
 {
+    /* The model and tree go before the connection is resumed: once every
+     * connection is resumed, shutdown destroys the store, which must find
+     * no reference left. */
+    pthread_mutex_lock(&rr->srv->lock);
+    arbor_tree *tree = rr->tree;
+    arbor_model *model = rr->model;
+    rr->tree = NULL;
+    rr->model = NULL;
+    pthread_mutex_unlock(&rr->srv->lock);
+    arbor_tree_release(tree);
+    arbor_model_release(model);
     http_resume(rr->http);
     rr->http = NULL;
     rr_release(rr);
@@ -220,19 +232,21 @@ static void frame_done(arbor_frame *f, void *user)
 static void start_frame(render_req *rr, arbor_tree *tree)
 {
     arbor_server *s = rr->srv;
-    rr->tree = tree;
-    rr->tree_ms = arbor_now_ms();
     arbor_err err;
     arbor_err_clear(&err);
     pthread_mutex_lock(&s->lock);
     bool go = !rr->answered, submitted = false;
     if (go) {
+        rr->tree = tree;
+        rr->tree_ms = arbor_now_ms();
         rr->state = RR_RENDERING;
         rr->submitted_ms = arbor_now_ms();
         rr->frame = arbor_render_submit(s->pool, arbor_tree_accel(tree), &rr->params, frame_done, rr, &err);
         submitted = rr->frame != NULL;
     }
     pthread_mutex_unlock(&s->lock);
+    if (!go)
+        arbor_tree_release(tree);
     /* Once submitted, rr belongs to frame_done, which may already have freed it. */
     if (go && !submitted && rr_claim(rr)) {
         http_reply_err(rr->http, &err);

@@ -198,6 +198,16 @@ cJSON *http_body_json(http_req *r)
     }
     const char *end = NULL;
     cJSON *j = cJSON_ParseWithLengthOpts(r->body, r->body_len, &end, false);
+    /* cJSON stops after the first value; anything but white space after it
+     * is as malformed as a broken value. */
+    while (j != NULL && end < r->body + r->body_len && (*end == ' ' || *end == '\n' || *end == '\r' || *end == '\t'))
+        end++;
+    if (j != NULL && end != r->body + r->body_len) {
+        cJSON_Delete(j);
+        http_reply_error(r, 400, "bad_request", "malformed JSON body: trailing data at byte %zu",
+                         (size_t)(end - r->body));
+        return NULL;
+    }
     if (j == NULL) {
         size_t at = end != NULL && end >= r->body ? (size_t)(end - r->body) : 0;
         http_reply_error(r, 400, "bad_request", "malformed JSON body near byte %zu", at);
@@ -282,6 +292,12 @@ static void route_metrics(http_req *r)
         return;
     }
     http_reply_buffer(r, 200, "text/plain; version=0.0.4; charset=utf-8", text, len);
+}
+
+static void on_build(void *user, arbor_accel_kind kind, arbor_builder builder, double ms, bool ok)
+{
+    arbor_server *s = user;
+    metrics_build(&s->metrics, kind, builder, ms, ok);
 }
 
 /* ---- routing ---- */
@@ -374,7 +390,11 @@ static void dispatch(http_req *r, const char *path)
         char name[ARBOR_MODEL_NAME_MAX + 2];
         const char *p = path + 11;
         if (!next_segment(&p, name, sizeof name) || !arbor_model_name_valid(name)) {
-            http_reply_error(r, 404, "not_found", "no model named '%s'", path + 12);
+            if (r->upload)
+                http_reply_error(r, 400, "bad_request",
+                                 "model names are 1..64 characters of A-Z a-z 0-9 . _ -, not '%s'", path + 12);
+            else
+                http_reply_error(r, 404, "not_found", "no model named '%s'", path + 12);
             return;
         }
         route_models(r, name, p);
@@ -483,10 +503,10 @@ static bool on_headers(http_req *r, const char *method)
     r->route = classify(path);
     if (q != NULL)
         *q = '?';
-    bool upload = r->route == ROUTE_MODEL && (http_method_is(r, "PUT") || http_method_is(r, "POST"));
-    r->limit = upload ? r->srv->config.max_upload : r->srv->config.max_body;
+    r->upload = r->route == ROUTE_MODEL && (http_method_is(r, "PUT") || http_method_is(r, "POST"));
+    r->limit = r->upload ? r->srv->config.max_upload : r->srv->config.max_body;
     /* Refuse an unauthorised upload before its body, not after storing it. */
-    if (upload && !http_may_write(r))
+    if (r->upload && !http_may_write(r))
         return false;
     const char *length = MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
     if (length != NULL && strtoull(length, NULL, 10) > r->limit) {
@@ -505,7 +525,7 @@ static void on_body(http_req *r, const char *data, size_t size)
         r->too_large = true;
         return;
     }
-    if (r->route == ROUTE_MODEL) {
+    if (r->upload) {
         if (!models_post_data(r, data, size))
             r->too_large = r->response == NULL;
         return;
@@ -708,6 +728,7 @@ arbor_server *arbor_server_start(const arbor_server_config *c, arbor_store *stor
     pthread_cond_init(&s->idle, NULL);
     pthread_cond_init(&s->reaper_wake, NULL);
     s->jobs = jobs_create(pool);
+    arbor_store_on_build(store, on_build, s);
     bool ok = (c->token == NULL || s->token != NULL) && s->jobs != NULL;
     if (!ok)
         arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory starting the server");
@@ -750,6 +771,7 @@ void arbor_server_stop(arbor_server *s)
     arbor_store_cancel_builds(s->store);
     if (s->jobs != NULL)
         jobs_cancel_all(s->jobs);
+    arbor_store_on_build(s->store, NULL, NULL);
     if (s->reaper_started)
         pthread_join(s->reaper, NULL);
     /* Cancelled frames and builds answer from the workers; wait for every

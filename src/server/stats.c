@@ -228,7 +228,7 @@ static cJSON *daemon_json(arbor_server *s)
     cJSON *q = cJSON_AddObjectToObject(d, "queue");
     cJSON_AddNumberToObject(q, "waiting", waiting);
     cJSON_AddNumberToObject(q, "rendering", rendering);
-    cJSON_AddNumberToObject(q, "limit", s->config.threads + s->config.queue);
+    cJSON_AddNumberToObject(q, "limit", s->config.queue);
     cJSON *mem = cJSON_AddObjectToObject(d, "memory");
     cJSON_AddNumberToObject(mem, "models", (double)u.models);
     cJSON_AddNumberToObject(mem, "trees", (double)u.trees);

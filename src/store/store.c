@@ -48,6 +48,7 @@ struct arbor_model {
     char *file;
     uint64_t version;
     uint64_t bytes;
+    bool uploaded;        /* its file was written by the daemon */
     arbor_mesh mesh;
     /* protected by store->lock */
     bool detached;        /* removed or replaced: no longer listed, no new builds */
@@ -94,13 +95,13 @@ const char *arbor_tree_state_name(arbor_tree_state s)
     return (unsigned)s < 4 ? state_names[s] : "?";
 }
 
-/* Bytes per triangle a tree may take while it is built, an upper estimate
- * from the trees of ../shared/models (bvh: both layouts plus build scratch;
- * kd: nodes, leaf lists and event lists), so that a build that cannot fit is
- * refused before it starts rather than after. */
+/* Bytes per triangle a built tree takes, about the largest of the trees of
+ * ../shared/models (bvh sah: both layouts; kd: nodes and leaf lists), so
+ * that a build that cannot fit is refused before it starts rather than
+ * after. */
 static uint64_t build_estimate(arbor_accel_kind kind, uint32_t ntris)
 {
-    uint64_t per_tri = kind == ARBOR_ACCEL_BVH ? 160 : 320;
+    uint64_t per_tri = kind == ARBOR_ACCEL_BVH ? 120 : 160;
     return per_tri * ntris + 4096;
 }
 
@@ -186,6 +187,7 @@ const char *arbor_model_name(const arbor_model *m) { return m->name; }
 const char *arbor_model_file(const arbor_model *m) { return m->file; }
 uint64_t arbor_model_version(const arbor_model *m) { return m->version; }
 uint64_t arbor_model_bytes(const arbor_model *m) { return m->bytes; }
+bool arbor_model_uploaded(const arbor_model *m) { return m->uploaded; }
 const arbor_mesh *arbor_model_mesh(const arbor_model *m) { return &m->mesh; }
 const arbor_accel *arbor_tree_accel(const arbor_tree *t) { return t->accel; }
 arbor_model *arbor_tree_model(const arbor_tree *t) { return t->model; }
@@ -367,7 +369,7 @@ static arbor_model *model_new(const char *name, const char *file, const arbor_me
     return m;
 }
 
-bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, arbor_mesh *mesh, bool replace,
+bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, arbor_mesh *mesh, unsigned flags,
                            uint64_t *version, arbor_err *e)
 {
     if (!arbor_model_name_valid(name))
@@ -376,11 +378,12 @@ bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, a
     arbor_model *m = model_new(name, file, mesh, s, e);
     if (m == NULL)
         return false;
+    m->uploaded = (flags & ARBOR_ADD_UPLOADED) != 0;
     dropped d;
     pthread_mutex_lock(&s->lock);
     bool found, ok = dropped_init(s, &d, e) && table_grow(s, e);
     uint32_t at = table_find(s, name, &found);
-    if (ok && found && !replace)
+    if (ok && found && !(flags & ARBOR_ADD_REPLACE))
         ok = arbor_fail(e, ARBOR_ERR_EXISTS, "model '%s' exists (replace it with ?replace=1)", name);
     if (ok) {
         arbor_model *old = found ? s->models[at] : NULL;
@@ -470,6 +473,14 @@ void arbor_model_tree_info(arbor_store *s, arbor_model *m, arbor_accel_kind kind
     pthread_mutex_unlock(&s->lock);
 }
 
+void arbor_store_on_build(arbor_store *s, arbor_store_build_fn fn, void *user)
+{
+    pthread_mutex_lock(&s->lock);
+    s->config.on_build = fn;
+    s->config.on_build_user = user;
+    pthread_mutex_unlock(&s->lock);
+}
+
 void arbor_store_usage_of(arbor_store *s, arbor_store_usage *u)
 {
     pthread_mutex_lock(&s->lock);
@@ -547,14 +558,16 @@ static void build_run(void *ctx, uint32_t task)
         nwaiters++;
     if (filed)
         atomic_fetch_add(&t->refs, (int)nwaiters);
+    arbor_store_build_fn on_build = s->config.on_build;
+    void *on_build_user = s->config.on_build_user;
     pthread_mutex_unlock(&s->lock);
 
     if (d.trees != NULL)
         dropped_release(&d);
     if (!filed)
         arbor_tree_release(t);
-    if (s->config.on_build != NULL)
-        s->config.on_build(s->config.on_build_user, b->kind, b->builder, st.build_ms, filed);
+    if (on_build != NULL)
+        on_build(on_build_user, b->kind, b->builder, st.build_ms, filed);
     while (w != NULL) {
         waiter *next = w->next;
         w->fn(w->user, filed ? t : NULL, filed ? NULL : &err);
@@ -601,16 +614,31 @@ static void build_free(void *ctx)
     free(b);
 }
 
-/* Starts a build for an absent or failed slot. Lock held. */
+/* Whether `need` more bytes could fit if every tree nobody renders with were
+ * evicted. Lock held. */
+static bool could_fit(arbor_store *s, uint64_t need)
+{
+    uint64_t limit = s->config.max_memory;
+    if (limit == 0)
+        return true;
+    uint64_t fixed = used_bytes(s);
+    for (uint32_t i = 0; i < s->nmodels; i++)
+        for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
+            for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
+                if (evictable(&s->models[i]->slots[k][b]))
+                    fixed -= s->models[i]->slots[k][b].tree->bytes;
+    return fixed + need <= limit;
+}
+
+/* Starts a build for an absent or failed slot. A build that could not fit
+ * even with every idle tree evicted is refused now; otherwise nothing is
+ * evicted yet: the tree's real size, known when it is built, decides what
+ * goes (build_run). Lock held. */
 static bool build_start(arbor_store *s, arbor_model *m, arbor_accel_kind kind, arbor_builder builder,
                         arbor_err *e)
 {
     uint64_t need = build_estimate(kind, m->mesh.ntris);
-    dropped d;
-    if (!dropped_init(s, &d, e))
-        return false;
-    uint64_t pending = 0;
-    bool ok = make_room(s, need, NULL, &d, &pending);
+    bool ok = could_fit(s, need);
     if (!ok)
         fail_nospace(s, need, "building the tree", e);
     build *b = ok ? calloc(1, sizeof *b) : NULL;
@@ -645,9 +673,6 @@ static bool build_start(arbor_store *s, arbor_model *m, arbor_accel_kind kind, a
         s->reserved += need;
         s->building++;
     }
-    /* Trees evicted to make room are released with the lock held: rare, and
-     * only trees nobody renders with. */
-    dropped_release(&d);
     return ok;
 }
 
