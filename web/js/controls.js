@@ -51,7 +51,7 @@ export function attachControls(app, frameEl, pane) {
     frameEl.addEventListener('contextmenu', (e) => e.preventDefault());
 
     frameEl.addEventListener('pointerdown', (e) => {
-        frameEl.focus({ preventScroll: true });
+        frameEl.focus({ preventScroll: true, focusVisible: false });
         frameEl.setPointerCapture(e.pointerId);
         pointers.set(e.pointerId, { x: e.clientX, y: e.clientY });
         if (pointers.size === 1) {

@@ -35,6 +35,7 @@ export class Pane {
         this.boxes = null;         // {key, data} | {key, error}
         this.boxesLoading = '';
         this.ray = null;           // {req, data, heat}
+        this.heat = null;          // {tree, scale}: the last full heat frame's X-Heat-Scale
         this.frameTimes = [];      // arrival times of quick frames while moving (FPS)
         this.fps = null;
         this.buildDoneKeys = new Set();
@@ -92,6 +93,10 @@ export class Pane {
             background: this.app.background(),
         };
         if (quick && s.mode === 'ao') req.ao_samples = 2;
+        // quick heat frames keep the last full frame's colour scale, so colours hold still while orbiting
+        if (quick && s.mode === 'heat' && this.heat && this.heat.tree === this.treeKey() && this.heat.scale > 0) {
+            req.heat_scale = this.heat.scale;
+        }
         return req;
     }
 
@@ -189,7 +194,10 @@ export class Pane {
         };
         this.canvas.dataset.frame = quick ? 'quick' : 'full';
         this.canvas.dataset.camera = JSON.stringify(req.camera);
-        if (!quick) this.lastFull = { blob: frame.blob, req };
+        if (!quick) {
+            this.lastFull = { blob: frame.blob, req };
+            if (req.mode === 'heat' && frame.heatScale > 0) this.heat = { tree: `${req.model}/${req.accel}/${req.builder}`, scale: frame.heatScale };
+        }
         const now = performance.now();
         if (quick) {
             this.frameTimes.push(now);
