@@ -40,6 +40,7 @@ struct arbor_server {
     double start_ms;
     http_metrics metrics;
     job_table *jobs;
+    atomic_bool closing;            /* stopping, for the polling thread's answers (no lock there) */
 
     pthread_mutex_t lock;           /* guards everything down to `inflight` */
     pthread_cond_t idle;            /* signalled when `inflight` drops to 0 */

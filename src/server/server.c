@@ -26,6 +26,7 @@
 #include "http.h"
 
 #define REAPER_PERIOD_MS 100
+#define DRAIN_MS 3000
 
 /* ---- replies ---- */
 
@@ -486,6 +487,10 @@ static enum MHD_Result queue_reply(http_req *r)
     if (r->response == NULL)
         return MHD_NO;
     MHD_add_response_header(r->response, "X-Request-Id", r->id);
+    /* While stopping, connections close after their answer, so that the
+     * daemon can wait for every answer to leave before it stops. */
+    if (atomic_load(&r->srv->closing))
+        MHD_add_response_header(r->response, MHD_HTTP_HEADER_CONNECTION, "close");
     enum MHD_Result ok = MHD_queue_response(r->conn, r->status, r->response);
     MHD_destroy_response(r->response);
     r->response = NULL;
@@ -754,6 +759,21 @@ bool arbor_server_writes_forbidden(const arbor_server *s)
     return s->token == NULL && !s->loopback;
 }
 
+/* Gives the answers already queued time to reach their clients: until no
+ * connection is left open (they close after answering while stopping) or
+ * DRAIN_MS have passed, whichever is first. */
+static void drain(arbor_server *s)
+{
+    double until = arbor_now_ms() + DRAIN_MS;
+    while (s->mhd != NULL && arbor_now_ms() < until) {
+        const union MHD_DaemonInfo *info = MHD_get_daemon_info(s->mhd, MHD_DAEMON_INFO_CURRENT_CONNECTIONS);
+        if (info == NULL || info->num_connections == 0)
+            return;
+        struct timespec pause = {0, 10 * 1000000L};
+        nanosleep(&pause, NULL);
+    }
+}
+
 void arbor_server_stop(arbor_server *s)
 {
     if (s == NULL)
@@ -763,6 +783,7 @@ void arbor_server_stop(arbor_server *s)
         if (listen != MHD_INVALID_SOCKET)
             close(listen);
     }
+    atomic_store(&s->closing, true);
     pthread_mutex_lock(&s->lock);
     s->stopping = true;
     pthread_cond_broadcast(&s->reaper_wake);
@@ -781,6 +802,7 @@ void arbor_server_stop(arbor_server *s)
     while (s->inflight > 0)
         pthread_cond_wait(&s->idle, &s->lock);
     pthread_mutex_unlock(&s->lock);
+    drain(s);
     if (s->mhd != NULL)
         MHD_stop_daemon(s->mhd);
     jobs_destroy(s->jobs);

@@ -601,12 +601,18 @@ static void build_done(void *ctx, bool cancelled)
             w = next;
         }
     }
+    /* The model goes before `building` drops: once it is 0, destroy expects
+     * no reference but its own. */
+    arbor_model_release(b->model);
+    b->model = NULL;
     pthread_mutex_lock(&s->lock);
     if (--s->building == 0)
         pthread_cond_broadcast(&s->builds_done);
     pthread_mutex_unlock(&s->lock);
 }
 
+/* The pool let go of the job; done has run (and released the model) unless
+ * the job was never submitted. */
 static void build_free(void *ctx)
 {
     build *b = ctx;
