@@ -28,6 +28,8 @@ const CODE_WORDS = {
     busy: 'the daemon is busy',
     timeout: 'it took longer than the daemon allows',
     insufficient_memory: 'not enough memory on the daemon',
+    insufficient_storage: 'the daemon could not save the file in its models folder',
+    not_implemented: 'the daemon does not do this yet',
     internal: 'the daemon hit an internal error',
 };
 
