@@ -245,6 +245,9 @@ static bool stop_requested(stop_flag *f)
 
 /* ---- loading ---- */
 
+/* The model name of a file: its name less the extension, with every
+ * character a model name may not hold made '_' ("rose+vase.obj" is
+ * rose_vase). False for files that are not models. */
 static bool model_file(const char *name, char *base, size_t cap)
 {
     static const char *const exts[] = {".obj.gz", ".ply.gz", ".obj", ".ply"};
@@ -252,7 +255,12 @@ static bool model_file(const char *name, char *base, size_t cap)
     for (size_t i = 0; i < sizeof exts / sizeof exts[0]; i++) {
         size_t k = strlen(exts[i]);
         if (n > k && strcmp(name + n - k, exts[i]) == 0 && n - k < cap) {
-            memcpy(base, name, n - k);
+            for (size_t j = 0; j < n - k; j++) {
+                char c = name[j];
+                bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' ||
+                          c == '_' || c == '-';
+                base[j] = ok ? c : '_';
+            }
             base[n - k] = '\0';
             return true;
         }
@@ -312,7 +320,7 @@ static void load_one(arbor_server *server, arbor_store *store, const char *dir, 
 {
     char name[ARBOR_MODEL_NAME_MAX + 1], path[PATH_MAX];
     if (!model_file(file, name, sizeof name) || !arbor_model_name_valid(name)) {
-        fprintf(stderr, "arbord: skipping %s/%s: its name is not a model name ([A-Za-z0-9._-], 1..64)\n", dir, file);
+        fprintf(stderr, "arbord: skipping %s/%s: its name makes no model name (1..64 characters)\n", dir, file);
         return;
     }
     snprintf(path, sizeof path, "%s/%s", dir, file);
