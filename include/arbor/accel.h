@@ -10,15 +10,34 @@
  *
  * Names ("bvh", "kd", "spatial", "median", "mean", "sah") are the same
  * strings in the CLI, the JSON API and the viewer.
+ *
+ * Threads. A build runs on the calling thread and idle workers of
+ * opts.pool, never on threads of its own: a daemon gives every build the
+ * one pool its other work uses, so concurrent builds share the cores.
+ * opts.threads caps the threads working on one build at once (the calling
+ * thread counts as one). It also fixes where the recursion splits into
+ * parallel parts, and the statistics are summed part by part, so the last
+ * digits of sah_cost may differ between thread counts; for a given
+ * opts.threads the tree and every statistic are the same whatever the pool
+ * and however its threads are busy. Without a pool, a build with threads
+ * other than 1 starts a pool of threads - 1 workers for its own duration
+ * (the command line's way; a server passes its pool).
+ *
+ * Cancelling. A build polls *opts.cancel at every node; once it sees it set
+ * it stops and fails with ARBOR_ERR_CANCELLED, having freed everything; it
+ * never returns a tree cut short. A cancel that comes as the build ends may
+ * find nothing left to stop: the build then returns its complete tree.
  */
 #ifndef ARBOR_ACCEL_H
 #define ARBOR_ACCEL_H
 
+#include <stdatomic.h>
 #include <stdbool.h>
 #include <stdint.h>
 
 #include "arbor/err.h"
 #include "arbor/mesh.h"
+#include "arbor/pool.h"
 #include "arbor/ray.h"
 
 typedef enum { ARBOR_ACCEL_BVH, ARBOR_ACCEL_KD, ARBOR_ACCEL_KIND_COUNT } arbor_accel_kind;
@@ -34,7 +53,10 @@ typedef enum {
 typedef struct {
     arbor_accel_kind kind;
     arbor_builder builder;
-    int threads;          /* build threads; 0 = one per core */
+    int threads;          /* at most this many threads on the build at once (see above); 0 = as many
+                           * as the pool has, or one per core without a pool */
+    arbor_pool *pool;     /* workers that help the calling thread; NULL: see above */
+    const atomic_bool *cancel; /* the build stops when it is set; NULL: never cancelled */
     int max_leaf_tris;    /* leaf size limit; 0 = the kind's default */
     int max_depth;        /* 0 = the kind's default (kd: 8 + 1.3 log2 N) */
     float cost_traverse;  /* SAH cost of visiting an inner node; 0 = default */
@@ -72,7 +94,9 @@ const char *arbor_builder_name(arbor_builder builder);
 bool arbor_accel_kind_parse(const char *name, arbor_accel_kind *kind);
 bool arbor_builder_parse(const char *name, arbor_builder *builder);
 
-/* Builds a tree over m. NULL on failure (invalid options, no memory). */
+/* Builds a tree over m. NULL on failure (invalid options, no memory,
+ * ARBOR_ERR_CANCELLED when cancelled). opts.pool and opts.cancel are used
+ * only while the build runs. */
 arbor_accel *arbor_accel_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_err *e);
 
 /* Closest hit in (r->tmin, r->tmax); on a hit shrinks r->tmax and fills h. */

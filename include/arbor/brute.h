@@ -22,9 +22,11 @@ bool arbor_brute_intersect(const arbor_mesh *m, arbor_ray *r, arbor_hit *h);
 /* Any hit in (r->tmin, r->tmax). */
 bool arbor_brute_occluded(const arbor_mesh *m, const arbor_ray *r);
 
-/* Closest hits for n rays on at most `threads` threads (0 = one per core),
- * the pool's when pool is not NULL, else threads of its own: hit[i] gets
- * ray i's hit and found[i] whether there was one; rays are not modified. */
+/* Closest hits for n rays on the calling thread and up to threads - 1
+ * workers of `pool` (threads 0 = as many as the pool has), or, without a
+ * pool, of a pool started for the call (threads 0 = one per core): hit[i]
+ * gets ray i's hit and found[i] whether there was one; rays are not
+ * modified. */
 void arbor_brute_intersect_many(arbor_pool *pool, const arbor_mesh *m, const arbor_ray *rays, size_t n,
                                 arbor_hit *hit, bool *found, int threads);
 

@@ -9,12 +9,12 @@
  *
  * A tracer is measured through an arbor_trace_kernel: a tight loop over a
  * slice of a set, called once per chunk of ARBOR_TRACE_CHUNK rays (never per
- * ray). arbor_trace_set runs a set on at most `threads` threads: with a
- * pool, the calling thread and up to threads - 1 of the pool's idle workers
- * claim chunks one at a time; without one (pool NULL), on `threads` threads
- * of its own over a fixed partition (thread k takes chunks k, k + threads,
- * ...), which a benchmark measuring exactly N threads wants (at most 256
- * threads). arbor_time_set repeats whole passes until min_ms have passed.
+ * ray). arbor_trace_set runs a set on the calling thread and up to
+ * threads - 1 workers of `pool`, each claiming the next chunk not yet
+ * traced. Without a pool (NULL) it starts a pool of threads - 1 workers for
+ * the call, so a benchmark measuring N threads gets N threads of its own.
+ * arbor_time_set repeats whole passes until min_ms have passed, on one such
+ * pool for all of them.
  */
 #ifndef ARBOR_RAYSETS_H
 #define ARBOR_RAYSETS_H
@@ -67,8 +67,10 @@ typedef void (*arbor_trace_kernel)(const void *tracer, const arbor_ray *rays, si
 /* Our tracer's kernel; `tracer` is an arbor_accel. */
 void arbor_accel_kernel(const void *tracer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t);
 
-/* One pass over the set on `threads` threads (0 = one per core). The
- * tally is summed chunk by chunk in order, so it does not depend on threads. */
+/* One pass over the set on at most `threads` threads, the caller included
+ * (0 = as many as the pool has; one per core without a pool). The tally is
+ * summed chunk by chunk in order, so it does not depend on threads. False
+ * when out of memory or when the threads of its own cannot be started. */
 bool arbor_trace_set(arbor_pool *pool, arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n,
                      bool any_hit, int threads, arbor_tally *tally, arbor_err *e);
 
@@ -83,8 +85,9 @@ typedef struct {
 bool arbor_time_set(arbor_pool *pool, arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n,
                     bool any_hit, int threads, double min_ms, arbor_set_timing *out, arbor_err *e);
 
-/* Closest hits of every ray with our tracer on `threads` threads: hits[i]
- * and found[i] for ray i (the reference trace for arbor_raysets_secondary). */
+/* Closest hits of every ray with our tracer, on threads as arbor_trace_set:
+ * hits[i] and found[i] for ray i (the reference trace for
+ * arbor_raysets_secondary). */
 bool arbor_accel_trace_hits(arbor_pool *pool, const arbor_accel *a, const arbor_ray *rays, size_t n, int threads,
                             arbor_hit *hits, bool *found, arbor_err *e);
 

@@ -76,10 +76,32 @@ static bool opts_validate(const arbor_build_opts *o, arbor_err *e)
     return true;
 }
 
+arbor_pool *accel_run_init(accel_run *run, const arbor_build_opts *o)
+{
+    uint32_t threads = o->threads > 0 ? (uint32_t)o->threads
+                       : o->pool != NULL ? (uint32_t)arbor_pool_threads(o->pool)
+                                         : (uint32_t)arbor_cpu_count();
+    arbor_pool *own = o->pool == NULL && threads > 1 ? arbor_pool_create((int)threads - 1, NULL) : NULL;
+    run->pool = o->pool != NULL ? o->pool : own;
+    run->threads = threads;
+    arbor_pool_budget_init(&run->budget, run->pool, threads);
+    run->cancel = o->cancel;
+    atomic_init(&run->stopped, false);
+    return own;
+}
+
+static void *cancelled(arbor_err *e)
+{
+    arbor_fail(e, ARBOR_ERR_CANCELLED, "build cancelled");
+    return NULL;
+}
+
 arbor_accel *arbor_accel_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_err *e)
 {
     if (!opts_validate(o, e))
         return NULL;
+    if (o->cancel != NULL && atomic_load(o->cancel))
+        return cancelled(e);
     arbor_accel *a = calloc(1, sizeof *a);
     if (a == NULL) {
         arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory allocating a tree");
@@ -88,12 +110,15 @@ arbor_accel *arbor_accel_build(const arbor_mesh *m, const arbor_build_opts *o, a
     a->ops = o->kind == ARBOR_ACCEL_BVH ? &arbor_bvh_ops : &arbor_kd_ops;
     a->mesh = m;
     a->opts = *o;
+    accel_run run;
+    arbor_pool *own = accel_run_init(&run, o);
     double t0 = arbor_now_ms();
-    a->impl = a->ops->build(m, o, &a->stats, e);
+    a->impl = a->ops->build(m, o, &run, &a->stats, e);
     a->stats.build_ms = arbor_now_ms() - t0;
+    arbor_pool_destroy(own);
     if (a->impl == NULL) {
         free(a);
-        return NULL;
+        return atomic_load(&run.stopped) ? cancelled(e) : NULL;
     }
     return a;
 }

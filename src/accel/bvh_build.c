@@ -28,17 +28,23 @@
  * halved by count. The same median split takes over near BVH_MAX_DEPTH so
  * that no tree is deeper than the traversal stack.
  *
- * Parallel build: the top levels of the recursion run their two children on
- * two threads (arbor_fork_join). The left child is built into slot s + 1 as
- * always; the right child cannot know how many nodes the left will use, so
- * it is built into the slot its worst case would leave free, s + 2 n_left,
- * and moved down next to the left subtree after both finish.
+ * Parallel build: the top levels of the recursion build their two children
+ * as a parallel loop of two (accel_parallel: the calling thread and an idle
+ * pool worker, if the build's budget allows). The left child is built into
+ * slot s + 1 as always; the right child cannot know how many nodes the left
+ * will use, so it is built into the slot its worst case would leave free,
+ * s + 2 n_left, and moved down next to the left subtree after both finish.
+ * Which levels fork depends only on the build's thread count, never on
+ * which threads turn up, so neither do the tree and its sums.
+ *
+ * Cancelling: every node polls the cancel flag (accel_stop); once it is set
+ * each node still to be built becomes a leaf, so the recursion unwinds in
+ * one pass over the triangles left, and the build then fails.
  */
 #include <emmintrin.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "arbor/sys.h"
 #include "bvh_internal.h"
 
 /* Defaults (arbor_build_opts fields that are 0). The simple builders split
@@ -51,9 +57,9 @@
 #define BVH_SAH_MIN_BINS 16
 #define BVH_COST_TRAVERSE 1.0f
 #define BVH_COST_INTERSECT 1.0f
-/* A node forks onto a second thread only if it has this many triangles, and
- * only in the top levels: enough levels that uneven splits still keep every
- * core busy (a few threads per core), no more. */
+/* A node forks into a parallel pair only if it has this many triangles, and
+ * only in the top levels: enough levels that uneven splits still leave work
+ * for every thread (a few parts per thread), no more. */
 #define BVH_FORK_MIN_TRIS 8192
 #define BVH_FORK_EXTRA_LEVELS 2
 /* Meshes this large also split the linear passes over all triangles. */
@@ -76,6 +82,7 @@ typedef struct {
     const float *centroid;      /* per mesh triangle: x, y, z of its box centre, 0 */
     uint32_t *idx;              /* triangle indices; each task owns a range */
     bvh_node *nodes;            /* each task owns a range of slots */
+    accel_run *run;             /* threads and cancel flag */
 } bvh_builder;
 
 /* What a subtree's build adds to the statistics; parallel tasks each keep
@@ -397,9 +404,10 @@ typedef struct {
     uint32_t used;
 } build_task;
 
-static void build_task_run(void *arg)
+/* Task number `i` of the array `tasks`. */
+static void build_task_run(void *tasks, uint32_t i)
 {
-    build_task *t = arg;
+    build_task *t = (build_task *)tasks + i;
     t->used = build_subtree(t->B, t->slot, t->begin, t->end, t->depth, &t->tally);
 }
 
@@ -424,22 +432,22 @@ static void move_subtree(bvh_node *nodes, uint32_t from, uint32_t to, uint32_t c
             nodes[i].index -= from - to;
 }
 
-/* Builds the children of inner node s over idx[b, m) and idx[m, e) on two
- * threads; returns the nodes they used. */
+/* Builds the children of inner node s over idx[b, m) and idx[m, e) as a
+ * parallel pair; returns the nodes they used. */
 static uint32_t build_children_parallel(const bvh_builder *B, uint32_t s, uint32_t b, uint32_t m, uint32_t e,
                                         uint32_t depth, bvh_tally *tally)
 {
-    build_task left = {B, s + 1, b, m, depth + 1, {0}, 0};
     /* the left subtree uses at most 2 (m - b) - 1 slots */
-    build_task right = {B, s + 2 * (m - b), m, e, depth + 1, {0}, 0};
-    arbor_fork_join(build_task_run, &left, build_task_run, &right, true);
-    uint32_t right_slot = s + 1 + left.used;
-    if (right_slot != right.slot)
-        move_subtree(B->nodes, right.slot, right_slot, right.used);
+    build_task kids[2] = {{B, s + 1, b, m, depth + 1, {0}, 0}, {B, s + 2 * (m - b), m, e, depth + 1, {0}, 0}};
+    accel_parallel(B->run, 2, build_task_run, kids);
+    const build_task *left = &kids[0], *right = &kids[1];
+    uint32_t right_slot = s + 1 + left->used;
+    if (right_slot != right->slot)
+        move_subtree(B->nodes, right->slot, right_slot, right->used);
     B->nodes[s].index = right_slot;
-    tally_add(tally, &left.tally);
-    tally_add(tally, &right.tally);
-    return left.used + right.used;
+    tally_add(tally, &left->tally);
+    tally_add(tally, &right->tally);
+    return left->used + right->used;
 }
 
 /* Builds the subtree over idx[b, e) with its root in slot s at `depth`, in
@@ -456,7 +464,8 @@ static uint32_t build_subtree(const bvh_builder *B, uint32_t s, uint32_t b, uint
         node->bounds[3 + a] = box.hi[a];
     }
     float area = box_area(&box);
-    uint32_t m = e - b > 1 && depth < B->max_depth ? choose_split(B, b, e, depth, area, &cbox) : 0;
+    uint32_t m = e - b > 1 && depth < B->max_depth && !accel_stop(B->run) ? choose_split(B, b, e, depth, area, &cbox)
+                                                                          : 0;
     if (m == 0) {
         node->index = b;
         node->count = e - b;
@@ -505,8 +514,8 @@ void bvh_tree_free(bvh_tree *t)
     free(t);
 }
 
-/* A linear pass over mesh triangles [b, e), which large meshes split between
- * two threads. */
+/* A linear pass over mesh triangles [b, e), which large meshes split in two
+ * parallel halves. */
 typedef struct {
     const arbor_mesh *m;
     build_box *tri_box;
@@ -515,10 +524,11 @@ typedef struct {
     uint32_t b, e;
 } tri_pass;
 
-/* Each triangle's box and centroid, once for the whole build. */
-static void precompute_triangles(void *arg)
+/* Each triangle's box and centroid, once for the whole build: pass number
+ * `half` of the array `passes`. */
+static void precompute_triangles(void *passes, uint32_t half)
 {
-    const tri_pass *p = arg;
+    const tri_pass *p = (const tri_pass *)passes + half;
     for (uint32_t t = p->b; t < p->e; t++) {
         arbor_vec3 v[3];
         arbor_mesh_tri(p->m, t, &v[0], &v[1], &v[2]);
@@ -534,26 +544,23 @@ static void precompute_triangles(void *arg)
     }
 }
 
-/* Runs pass over all triangles, in two halves on two threads when parallel. */
-static void tri_pass_run(void (*pass)(void *), tri_pass whole, bool parallel)
+/* Runs pass over all triangles, in two parallel halves when parallel. */
+static void tri_pass_run(accel_run *run, void (*pass)(void *passes, uint32_t half), tri_pass whole, bool parallel)
 {
-    tri_pass low = whole, high = whole;
-    low.e = high.b = whole.e / 2;
-    if (parallel)
-        arbor_fork_join(pass, &low, pass, &high, true);
-    else
-        pass(&whole);
+    tri_pass halves[2] = {whole, whole};
+    halves[0].e = halves[1].b = whole.e / 2;
+    accel_parallel(run, parallel ? 2 : 1, pass, parallel ? halves : &whole);
 }
 
-static void builder_init(bvh_builder *B, const arbor_build_opts *o)
+static void builder_init(bvh_builder *B, const arbor_build_opts *o, accel_run *run)
 {
     memset(B, 0, sizeof *B);
     B->builder = o->builder;
     B->max_leaf = o->max_leaf_tris > 0 ? (uint32_t)o->max_leaf_tris
                   : o->builder == ARBOR_BUILD_SAH ? BVH_SAH_LEAF : BVH_SIMPLE_LEAF;
     B->max_depth = o->max_depth > 0 && o->max_depth < BVH_MAX_DEPTH ? (uint32_t)o->max_depth : BVH_MAX_DEPTH - 1;
-    int threads = o->threads > 0 ? o->threads : arbor_cpu_count();
-    B->fork_depth = threads > 1 ? ceil_log2((uint32_t)threads) + BVH_FORK_EXTRA_LEVELS : 0;
+    B->fork_depth = run->threads > 1 ? ceil_log2(run->threads) + BVH_FORK_EXTRA_LEVELS : 0;
+    B->run = run;
     B->cost_traverse = o->cost_traverse > 0.0f ? o->cost_traverse : BVH_COST_TRAVERSE;
     B->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : BVH_COST_INTERSECT;
 }
@@ -578,7 +585,8 @@ void *bvh_shrink_aligned(void *p, size_t used)
     return out;
 }
 
-void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats *stats, arbor_err *e)
+void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats,
+                arbor_err *e)
 {
     uint32_t n = m->ntris;
     if (n > UINT32_MAX / 2) {
@@ -597,7 +605,7 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
         return tree;
     }
     bvh_builder B;
-    builder_init(&B, o);
+    builder_init(&B, o, run);
     build_box *tri_box = malloc(n * sizeof *tri_box);
     float *centroid = malloc(4 * (size_t)n * sizeof *centroid);
     bvh_node *scratch = bvh_alloc_aligned((2 * (size_t)n - 1) * sizeof(bvh_node));
@@ -606,30 +614,33 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats
         goto nomem;
     bool parallel = B.fork_depth > 0 && n >= BVH_PARALLEL_PASS_TRIS;
     tri_pass pass = {m, tri_box, centroid, tree, 0, n};
-    tri_pass_run(precompute_triangles, pass, parallel);
+    tri_pass_run(run, precompute_triangles, pass, parallel);
     B.tri_box = tri_box;
     B.centroid = centroid;
     B.idx = tree->tri_index;
     B.nodes = scratch;
     bvh_tally tally = {0};
     tree->nnodes = build_subtree(&B, 0, 0, n, 0, &tally);
+    if (accel_stop(run))
+        goto fail; /* the tree was cut short */
     tree->nodes = bvh_shrink_aligned(scratch, tree->nnodes * sizeof(bvh_node));
     scratch = NULL;
     if (tree->nodes == NULL)
         goto nomem;
     free(tri_box);
     free(centroid);
-    if (!bvh_wide_build(tree, m, parallel, e)) {
+    if (!bvh_wide_build(tree, m, run, parallel, e)) {
         bvh_tree_free(tree);
         return NULL;
     }
     tally_to_stats(&tally, tree, aabb_area(bvh_node_box(&tree->nodes[0])), stats);
     return tree;
 nomem:
+    arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory building over %u triangles", n);
+fail:
     free(tri_box);
     free(centroid);
     free(scratch);
     bvh_tree_free(tree);
-    arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory building over %u triangles", n);
     return NULL;
 }

@@ -90,9 +90,11 @@ static inline uint32_t bvh_ref_tris(uint64_t ref) { return (uint32_t)(ref >> 32)
 /* The packs a leaf of that many triangles fills. */
 static inline uint32_t bvh_packs_for(uint32_t tris) { return (tris + BVH_WIDTH - 1) / BVH_WIDTH; }
 
-/* bvh_build.c: builds the tree for o->builder and fills every statistic but
- * build_ms. NULL (e filled) when memory runs out. */
-void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats *stats, arbor_err *e);
+/* bvh_build.c: builds the tree for o->builder on run's threads and fills
+ * every statistic but build_ms. NULL when memory runs out (e filled) or the
+ * build is cancelled (see accel_impl.h). */
+void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats,
+                arbor_err *e);
 
 /* bvh_traverse.c: the three queries of arbor_accel_ops. */
 bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h);
@@ -107,10 +109,10 @@ bool bvh_occluded(const void *impl, const arbor_ray *r);
 void *bvh_alloc_aligned(size_t bytes);
 void *bvh_shrink_aligned(void *p, size_t used);
 
-/* bvh_wide.c: builds t's wide tree from its binary tree, on two threads when
- * parallel (false, e filled, when memory runs out), and checks it against
- * the mesh. */
-bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, bool parallel, arbor_err *e);
+/* bvh_wide.c: builds t's wide tree from its binary tree, its linear pass in
+ * two parallel halves when parallel (false, e filled, when memory runs
+ * out), and checks it against the mesh. */
+bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool parallel, arbor_err *e);
 bool bvh_wide_validate(const bvh_tree *t, const arbor_mesh *m, arbor_err *e);
 /* The bytes both layouts hold, for arbor_tree_stats.bytes. */
 uint64_t bvh_tree_bytes(const bvh_tree *t);

@@ -19,14 +19,14 @@
  * into arrays sized for the worst case, which are then shrunk to fit (a
  * counting pass first cost more than it saved: the walk's cache misses on a
  * large binary tree dominate). The packs' vertices are copied afterwards in a
- * linear pass, on two threads for large meshes. The recursion is at most as
- * deep as the binary tree.
+ * linear pass, in two parallel halves for large meshes. The recursion is at
+ * most as deep as the binary tree. The pass is short next to the binary
+ * build, so it is not cancellable: bvh_build.c polls the cancel flag before.
  */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "arbor/sys.h"
 #include "bvh_internal.h"
 
 #define BVH_WIDE_LEAF_TRIS (2 * BVH_WIDTH)
@@ -127,16 +127,17 @@ static uint64_t fill_leaf(wide_ctx *x, tri_range r)
 }
 
 /* The vertices of packs [b, e), from the mesh, NaN in unused lanes: a
- * linear pass, split between two threads for large meshes. */
+ * linear pass, split in two parallel halves for large meshes. */
 typedef struct {
     bvh_tree *t;
     const arbor_mesh *m;
     uint32_t b, e;
 } vertex_pass;
 
-static void fill_vertices(void *arg)
+/* Pass number `half` of the array `passes`. */
+static void fill_vertices(void *passes, uint32_t half)
 {
-    const vertex_pass *vp = arg;
+    const vertex_pass *vp = (const vertex_pass *)passes + half;
     for (uint32_t p = vp->b; p < vp->e; p++) {
         bvh_tri_pack *pack = &vp->t->packs[p];
         for (int lane = 0; lane < BVH_WIDTH; lane++) {
@@ -185,7 +186,7 @@ static uint64_t fill_subtree(wide_ctx *x, uint32_t i)
     return fill_node(x, kids, n);
 }
 
-bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, bool parallel, arbor_err *e)
+bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool parallel, arbor_err *e)
 {
     if (t->nnodes == 0)
         return true;
@@ -210,8 +211,9 @@ bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, bool parallel, arbor_err *
     }
     if (t->wide == NULL || t->packs == NULL || t->pack_tri == NULL)
         return arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory for the wide tree of %u triangles", t->ntris);
-    vertex_pass low = {t, m, 0, t->npacks / 2}, high = {t, m, t->npacks / 2, t->npacks};
-    arbor_fork_join(fill_vertices, &low, fill_vertices, &high, parallel);
+    vertex_pass halves[2] = {{t, m, 0, t->npacks / 2}, {t, m, t->npacks / 2, t->npacks}};
+    vertex_pass whole = {t, m, 0, t->npacks};
+    accel_parallel(run, parallel ? 2 : 1, fill_vertices, parallel ? halves : &whole);
     return true;
 }
 

@@ -23,10 +23,16 @@
  * never listed there.
  *
  * Nodes go to a kd_buffer in depth-first order. When a node may use
- * several threads and both its children are big, the above child builds on
- * a new thread into a buffer of its own, appended after the below subtree
- * when both are done (kd_buffer_append rebases its child indices and list
- * offsets). The tree is the same whatever the thread count.
+ * several threads and both its children are big, its children build as a
+ * parallel pair (accel_parallel: the calling thread and an idle pool
+ * worker, if the build's budget allows), the above child into a buffer of
+ * its own, appended after the below subtree when both are done
+ * (kd_buffer_append rebases its child indices and list offsets). The tree
+ * is the same whatever the thread count.
+ *
+ * Cancelling: every node polls the cancel flag (accel_stop); once it is set
+ * the node and every node after it frees its events and marks its buffer
+ * failed, so the recursion unwinds without building anything more.
  *
  * Default options (0 or <0 in arbor_build_opts):
  *   max_depth      round(8 + 1.3 floor(log2 N)), as pbrt (<= KD_MAX_DEPTH)
@@ -36,13 +42,13 @@
  *                  cost model decides the rest
  *   cost_traverse  15, cost_intersect 20, empty_bonus 0.2: the paper's
  *                  KT, KI and lambda = 1 - empty_bonus = 0.8 (kd_sah.c)
- *   threads        arbor_cpu_count()
+ *   threads        as accel.c resolves it (the pool's thread count, or
+ *                  one per core without a pool)
  */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "arbor/sys.h"
 #include "kd_internal.h"
 
 /* Subtrees of fewer triangles are not worth a thread. */
@@ -622,7 +628,7 @@ typedef struct {
     uint32_t *index;
     size_t nindex, index_cap;
     kd_sums sums;
-    bool failed;  /* out of memory, or more nodes than 30 bits can name */
+    bool failed;  /* out of memory, more nodes than 30 bits can name, or cancelled */
 } kd_buffer;
 
 static bool kd_grow(void **array, size_t *cap, size_t need, size_t elem)
@@ -749,17 +755,18 @@ typedef struct {
     kd_buffer *out;
 } kd_job;
 
-static void kd_job_run(void *arg)
+/* Job number `i` of the array `jobs`. */
+static void kd_job_run(void *jobs, uint32_t i)
 {
-    kd_job *j = arg;
+    kd_job *j = (kd_job *)jobs + i;
     kd_build_subtree(j->b, j->scratch, j->task, j->out);
 }
 
 /* Builds the children of the inner node `inner`: below first (it must
  * follow its parent), then above. When the node may use more than one
- * thread and both children are big enough to be worth one, the above child
- * builds on a new thread, with its own scratch, into its own buffer, and
- * the children share the node's threads; otherwise each child in turn may
+ * thread and both children are big enough to be worth one, the children
+ * build as a parallel pair, the above one with its own scratch into its own
+ * buffer, and share the node's threads; otherwise each child in turn may
  * use them all. (So an SAH split that only cuts off empty space passes the
  * threads on to the side that has the work.) */
 static void kd_build_children(const kd_builder *b, kd_scratch *s, const kd_task *parent, size_t inner,
@@ -773,8 +780,8 @@ static void kd_build_children(const kd_builder *b, kd_scratch *s, const kd_task 
         below->threads = parent->threads - above->threads;
         kd_buffer above_out;
         memset(&above_out, 0, sizeof above_out);
-        kd_job jb = {b, s, below, out}, ja = {b, &s2, above, &above_out};
-        arbor_fork_join(kd_job_run, &ja, kd_job_run, &jb, true);
+        kd_job jobs[2] = {{b, s, below, out}, {b, &s2, above, &above_out}};
+        accel_parallel(b->run, 2, kd_job_run, jobs);
         kd_set_above(out, inner);
         kd_buffer_append(out, &above_out);
         free(above_out.nodes);
@@ -791,8 +798,13 @@ static void kd_build_children(const kd_builder *b, kd_scratch *s, const kd_task 
 /* Builds the subtree of t into out, and frees t's events. */
 static void kd_build_subtree(const kd_builder *b, kd_scratch *s, kd_task *t, kd_buffer *out)
 {
+    if (out->failed || accel_stop(b->run)) {
+        out->failed = true;
+        free(t->events);
+        return;
+    }
     kd_plane pl;
-    if (out->failed || !kd_choose_plane(b, s, t, &pl)) {
+    if (!kd_choose_plane(b, s, t, &pl)) {
         kd_emit_leaf(out, t);
         free(t->events);
         return;
@@ -819,9 +831,11 @@ static uint32_t kd_default_max_depth(uint32_t ntris)
     return d < KD_MAX_DEPTH ? d : KD_MAX_DEPTH;
 }
 
-static void kd_builder_init(kd_builder *b, const arbor_mesh *m, const arbor_build_opts *o, arbor_aabb bounds)
+static void kd_builder_init(kd_builder *b, const arbor_mesh *m, const arbor_build_opts *o, accel_run *run,
+                            arbor_aabb bounds)
 {
     b->mesh = m;
+    b->run = run;
     b->builder = o->builder;
     b->max_depth = o->max_depth > 0 ? (uint32_t)o->max_depth : kd_default_max_depth(m->ntris);
     b->max_leaf_tris = o->max_leaf_tris > 0 ? (uint32_t)o->max_leaf_tris : o->builder == ARBOR_BUILD_SAH ? 1u : 4u;
@@ -888,7 +902,7 @@ static void kd_fill_stats(const kd_tree *tree, const kd_sums *s, arbor_tree_stat
                                       : (double)(tree->nnodes - s->leaves) + (double)s->refs;
 }
 
-void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats *stats, arbor_err *e)
+void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats, arbor_err *e)
 {
     if (m->ntris >= KD_MAX_TRIS) {
         arbor_fail(e, ARBOR_ERR_INVALID, "kd tree: %u triangles, more than the %u it can hold", m->ntris,
@@ -905,22 +919,23 @@ void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats 
     if (ok) {
         tree->mesh = m;
         tree->bounds = kd_mesh_bounds(m);
-        kd_builder_init(&b, m, o, tree->bounds);
+        kd_builder_init(&b, m, o, run, tree->bounds);
         tree->max_depth = b.max_depth;
-        uint32_t threads = (uint32_t)(o->threads > 0 ? o->threads : arbor_cpu_count());
-        ok = kd_scratch_init(&s, &b) && kd_root_task(m, tree->bounds, threads, &root);
+        ok = kd_scratch_init(&s, &b) && kd_root_task(m, tree->bounds, run->threads, &root);
     }
     if (ok) {
         kd_build_subtree(&b, &s, &root, &out);
         ok = !out.failed;
     }
     kd_scratch_free(&s);
-    if (!ok) {
+    bool stopped = accel_stop(run);
+    if (!ok || stopped) {
         free(out.nodes);
         free(out.index);
         free(tree);
-        arbor_fail(e, ARBOR_ERR_NOMEM, "kd tree over %u triangles: out of memory (or over %u nodes)", m->ntris,
-                   KD_MAX_NODES);
+        if (!stopped)
+            arbor_fail(e, ARBOR_ERR_NOMEM, "kd tree over %u triangles: out of memory (or over %u nodes)", m->ntris,
+                       KD_MAX_NODES);
         return NULL;
     }
     /* give back the buffers' spare capacity */

@@ -3,8 +3,8 @@
  *
  *   kd.c           the arbor_kd_ops table: what accel.c calls
  *   kd_build.c     the recursion every builder shares (events, perfect
- *                  splits, node output, threads) and the spatial / median /
- *                  mean planes
+ *                  splits, node output, parallel parts, cancelling) and the
+ *                  spatial / median / mean planes
  *   kd_sah.c       the SAH plane of Wald and Havran (2006) by event sweep
  *   kd_traverse.c  closest-hit and any-hit ray queries
  *   kd_validate.c  the invariant checker behind arbor_accel_validate
@@ -141,6 +141,7 @@ typedef struct {
 /* The resolved build options, shared read-only by every build thread. */
 typedef struct {
     const arbor_mesh *mesh;
+    accel_run *run;        /* threads and cancel flag (not read-only: accel_stop records a cancel) */
     arbor_builder builder;
     uint32_t max_depth;
     uint32_t max_leaf_tris;
@@ -155,7 +156,7 @@ typedef struct {
 bool kd_sah_plane(const kd_builder *b, const kd_task *t, kd_plane *plane);
 
 /* The entry points behind arbor_kd_ops (kd.c); see accel_impl.h. */
-void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_tree_stats *stats, arbor_err *e);
+void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats, arbor_err *e);
 void kd_destroy(void *impl);
 bool kd_intersect(const void *impl, arbor_ray *r, arbor_hit *h);
 bool kd_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);

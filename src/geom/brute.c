@@ -2,8 +2,7 @@
  * brute.c - the brute-force intersector, the ground truth for every tree
  * (see include/arbor/brute.h).
  */
-#include <pthread.h>
-#include <stdlib.h>
+#include <assert.h>
 
 #include "arbor/brute.h"
 #include "arbor/sys.h"
@@ -43,52 +42,39 @@ bool arbor_brute_occluded(const arbor_mesh *m, const arbor_ray *r)
     return false;
 }
 
+/* Rays are traced in chunks of this many, each claimed by one thread. */
+#define BRUTE_CHUNK 64
+
 typedef struct {
     const arbor_mesh *m;
     const arbor_ray *rays;
+    size_t n;
     arbor_hit *hit;
     bool *found;
-    size_t begin, end;
-} brute_slice;
+} brute_pass;
 
-static void *brute_slice_run(void *arg)
+static void brute_chunk(void *ctx, uint32_t chunk)
 {
-    brute_slice *s = arg;
-    for (size_t i = s->begin; i < s->end; i++) {
-        arbor_ray r = s->rays[i];
-        s->found[i] = arbor_brute_intersect(s->m, &r, &s->hit[i]);
+    const brute_pass *p = ctx;
+    size_t begin = (size_t)chunk * BRUTE_CHUNK, end = begin + BRUTE_CHUNK < p->n ? begin + BRUTE_CHUNK : p->n;
+    for (size_t i = begin; i < end; i++) {
+        arbor_ray r = p->rays[i];
+        p->found[i] = arbor_brute_intersect(p->m, &r, &p->hit[i]);
     }
-    return NULL;
 }
 
 void arbor_brute_intersect_many(arbor_pool *pool, const arbor_mesh *m, const arbor_ray *rays, size_t n,
                                 arbor_hit *hit, bool *found, int threads)
 {
-    (void)pool; /* not used yet: the pool's parallel-for comes next */
-    if (threads <= 0)
+    brute_pass pass = {m, rays, n, hit, found};
+    size_t nchunks = (n + BRUTE_CHUNK - 1) / BRUTE_CHUNK;
+    assert(nchunks <= UINT32_MAX);
+    /* without a pool, one of its own for the call; if that cannot be
+     * started, everything runs here: slower, never wrong */
+    if (pool == NULL && threads <= 0)
         threads = arbor_cpu_count();
-    if ((size_t)threads > n)
-        threads = n > 0 ? (int)n : 1;
-    brute_slice *slices = calloc((size_t)threads, sizeof *slices);
-    pthread_t *tids = calloc((size_t)threads, sizeof *tids);
-    bool *started = calloc((size_t)threads, sizeof *started);
-    if (slices == NULL || tids == NULL || started == NULL) {
-        brute_slice all = {m, rays, hit, found, 0, n};
-        brute_slice_run(&all);
-    } else {
-        for (int k = 0; k < threads; k++) {
-            brute_slice s = {m, rays, hit, found, n * (size_t)k / (size_t)threads,
-                             n * (size_t)(k + 1) / (size_t)threads};
-            slices[k] = s;
-            started[k] = pthread_create(&tids[k], NULL, brute_slice_run, &slices[k]) == 0;
-            if (!started[k])
-                brute_slice_run(&slices[k]);
-        }
-        for (int k = 0; k < threads; k++)
-            if (started[k])
-                pthread_join(tids[k], NULL);
-    }
-    free(slices);
-    free(tids);
-    free(started);
+    arbor_pool *own = pool == NULL && threads > 1 ? arbor_pool_create(threads - 1, NULL) : NULL;
+    arbor_pool_parallel(pool != NULL ? pool : own, (uint32_t)nchunks, threads > 0 ? (uint32_t)threads : 0,
+                        brute_chunk, &pass);
+    arbor_pool_destroy(own);
 }

@@ -2,12 +2,12 @@
  * raysets.c - PROTOCOL.md's ray sets and the timed pass loop shared by every
  * tracer (see include/arbor/raysets.h).
  *
- * A pass splits the set into chunks of ARBOR_TRACE_CHUNK rays; thread k
- * traces chunks k, k + T, k + 2T, ... and writes each chunk's tally to its
- * own slot, summed in chunk order after the join. The calling thread is
- * thread 0, so a 1-thread pass starts no thread at all.
+ * A pass splits the set into chunks of ARBOR_TRACE_CHUNK rays, a parallel
+ * loop on the pool over the chunks: each thread claims the next chunk not
+ * yet traced and writes its tally to the chunk's own slot, summed in chunk
+ * order after the loop. The calling thread is one of the threads, so a
+ * 1-thread pass uses no pool at all.
  */
-#include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -17,7 +17,6 @@
 #include "sampling.h"
 
 #define PROTOCOL_EPS 1e-4f
-#define MAX_TRACE_THREADS 256
 
 bool arbor_raysets_primary(const arbor_mesh *m, arbor_raysets *s, arbor_err *e)
 {
@@ -96,57 +95,40 @@ void arbor_accel_kernel(const void *tracer, const arbor_ray *rays, size_t n, boo
     t->tsum += tsum;
 }
 
-/* ---- running chunks on threads ---- */
+/* ---- the threads a pass runs on ---- */
 
+/* A pass runs on the caller and up to threads - 1 workers of `pool`, which
+ * is the caller's or, when the caller has none, `own`, started for the
+ * call: a benchmark measuring N threads gets N, the caller the Nth. */
 typedef struct {
-    void (*chunk_fn)(void *ctx, size_t chunk);
-    void *ctx;
-    size_t nchunks;
-    int threads;
-} chunk_plan;
+    arbor_pool *pool, *own;
+    uint32_t threads;  /* 0: as many as the pool has */
+} trace_threads;
 
-typedef struct {
-    const chunk_plan *plan;
-    int k;
-} chunk_worker;
-
-static void *chunk_worker_run(void *arg)
+static bool trace_threads_init(trace_threads *t, arbor_pool *pool, int threads, arbor_err *e)
 {
-    const chunk_worker *w = arg;
-    const chunk_plan *p = w->plan;
-    for (size_t c = (size_t)w->k; c < p->nchunks; c += (size_t)p->threads)
-        p->chunk_fn(p->ctx, c);
-    return NULL;
+    t->pool = pool;
+    t->own = NULL;
+    t->threads = threads > 0 ? (uint32_t)threads : 0;
+    if (pool == NULL) {
+        t->threads = threads > 0 ? (uint32_t)threads : (uint32_t)arbor_cpu_count();
+        if (t->threads > 1 && (t->own = arbor_pool_create((int)t->threads - 1, e)) == NULL)
+            return false;
+        t->pool = t->own;
+    }
+    return true;
 }
 
-/* Runs every chunk once, thread k taking chunks k, k + T, ... */
-static bool run_chunks(chunk_plan *plan, arbor_err *e)
+/* Runs fn(ctx, c) for every chunk c, each chunk claimed by one thread. */
+static void trace_threads_run(const trace_threads *t, size_t nchunks, void (*fn)(void *ctx, uint32_t chunk),
+                              void *ctx)
 {
-    if (plan->threads <= 0)
-        plan->threads = arbor_cpu_count();
-    if (plan->threads > MAX_TRACE_THREADS)
-        return arbor_fail(e, ARBOR_ERR_INVALID, "at most %d tracing threads, not %d", MAX_TRACE_THREADS,
-                          plan->threads);
-    if ((size_t)plan->threads > plan->nchunks)
-        plan->threads = plan->nchunks > 0 ? (int)plan->nchunks : 1;
-    chunk_worker workers[MAX_TRACE_THREADS];
-    pthread_t tids[MAX_TRACE_THREADS];
-    int started = 1;
-    bool ok = true;
-    for (int k = 0; k < plan->threads; k++) {
-        workers[k].plan = plan;
-        workers[k].k = k;
-    }
-    for (int k = 1; k < plan->threads; k++, started++)
-        if (pthread_create(&tids[k], NULL, chunk_worker_run, &workers[k]) != 0) {
-            ok = arbor_fail(e, ARBOR_ERR_NOMEM, "cannot start tracing thread %d of %d", k + 1, plan->threads);
-            break;
-        }
-    if (ok)
-        chunk_worker_run(&workers[0]);
-    for (int k = 1; k < started; k++)
-        pthread_join(tids[k], NULL);
-    return ok;
+    arbor_pool_parallel(t->pool, (uint32_t)nchunks, t->threads, fn, ctx);
+}
+
+static void trace_threads_free(trace_threads *t)
+{
+    arbor_pool_destroy(t->own);
 }
 
 /* The rays [begin, end) of chunk number `chunk` of a set of n rays. */
@@ -161,6 +143,14 @@ static size_t chunk_count(size_t n)
     return (n + ARBOR_TRACE_CHUNK - 1) / ARBOR_TRACE_CHUNK;
 }
 
+/* Chunks are numbered by uint32_t, the pool's loop index. */
+static bool check_count(size_t n, arbor_err *e)
+{
+    if (chunk_count(n) > UINT32_MAX)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%zu rays are more than one pass can trace", n);
+    return true;
+}
+
 /* ---- tracing and timing sets ---- */
 
 typedef struct {
@@ -170,9 +160,10 @@ typedef struct {
     size_t n;
     bool any_hit;
     arbor_tally *chunk_tallies; /* one slot per chunk, each written by one thread */
+    trace_threads threads;
 } set_pass;
 
-static void set_pass_chunk(void *ctx, size_t chunk)
+static void set_pass_chunk(void *ctx, uint32_t chunk)
 {
     set_pass *p = ctx;
     size_t begin, end;
@@ -182,60 +173,73 @@ static void set_pass_chunk(void *ctx, size_t chunk)
     p->chunk_tallies[chunk] = t;
 }
 
-static bool run_pass(set_pass *pass, int threads, arbor_tally *tally, arbor_err *e)
+/* Traces every chunk, then sums their tallies in chunk order. */
+static void run_pass(set_pass *pass, arbor_tally *tally)
 {
-    chunk_plan plan = {set_pass_chunk, pass, chunk_count(pass->n), threads};
-    if (!run_chunks(&plan, e))
-        return false;
+    size_t nchunks = chunk_count(pass->n);
+    trace_threads_run(&pass->threads, nchunks, set_pass_chunk, pass);
     tally->hits = 0;
     tally->tsum = 0.0;
-    for (size_t c = 0; c < plan.nchunks; c++) {
+    for (size_t c = 0; c < nchunks; c++) {
         tally->hits += pass->chunk_tallies[c].hits;
         tally->tsum += pass->chunk_tallies[c].tsum;
+    }
+}
+
+static bool pass_init(set_pass *pass, arbor_pool *pool, int threads, arbor_trace_kernel kernel, const void *tracer,
+                      const arbor_ray *rays, size_t n, bool any_hit, arbor_err *e)
+{
+    memset(pass, 0, sizeof *pass);
+    pass->kernel = kernel;
+    pass->tracer = tracer;
+    pass->rays = rays;
+    pass->n = n;
+    pass->any_hit = any_hit;
+    if (!check_count(n, e))
+        return false;
+    pass->chunk_tallies = calloc(chunk_count(n) + 1, sizeof(arbor_tally));
+    if (pass->chunk_tallies == NULL)
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory tracing %zu rays", n);
+    if (!trace_threads_init(&pass->threads, pool, threads, e)) {
+        free(pass->chunk_tallies);
+        return false;
     }
     return true;
 }
 
-static bool pass_init(set_pass *pass, arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays,
-                      size_t n, bool any_hit, arbor_err *e)
+static void pass_free(set_pass *pass)
 {
-    set_pass p = {kernel, tracer, rays, n, any_hit, calloc(chunk_count(n) + 1, sizeof(arbor_tally))};
-    *pass = p;
-    if (pass->chunk_tallies == NULL)
-        return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory tracing %zu rays", n);
-    return true;
+    trace_threads_free(&pass->threads);
+    free(pass->chunk_tallies);
 }
 
 bool arbor_trace_set(arbor_pool *pool, arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n,
                      bool any_hit, int threads, arbor_tally *tally, arbor_err *e)
 {
-    (void)pool; /* not used yet: the pool's parallel-for comes next */
     set_pass pass;
-    if (!pass_init(&pass, kernel, tracer, rays, n, any_hit, e))
+    if (!pass_init(&pass, pool, threads, kernel, tracer, rays, n, any_hit, e))
         return false;
-    bool ok = run_pass(&pass, threads, tally, e);
-    free(pass.chunk_tallies);
-    return ok;
+    run_pass(&pass, tally);
+    pass_free(&pass);
+    return true;
 }
 
 bool arbor_time_set(arbor_pool *pool, arbor_trace_kernel kernel, const void *tracer, const arbor_ray *rays, size_t n,
                     bool any_hit, int threads, double min_ms, arbor_set_timing *out, arbor_err *e)
 {
-    (void)pool; /* not used yet: the pool's parallel-for comes next */
     set_pass pass;
-    if (!pass_init(&pass, kernel, tracer, rays, n, any_hit, e))
+    if (!pass_init(&pass, pool, threads, kernel, tracer, rays, n, any_hit, e))
         return false;
     memset(out, 0, sizeof *out);
-    bool ok = true;
     double start = arbor_now_ms();
     do {
-        ok = run_pass(&pass, threads, &out->tally, e);
+        run_pass(&pass, &out->tally);
         out->passes++;
         out->ms = arbor_now_ms() - start;
-    } while (ok && out->ms < min_ms);
-    free(pass.chunk_tallies);
+    } while (out->ms < min_ms);
+    pass_free(&pass);
     out->mrays_per_s = out->ms > 0.0 ? (double)n * out->passes / (out->ms * 1e3) : 0.0;
-    return ok;
+    return true;
 }
 
 /* ---- the reference trace ---- */
@@ -248,7 +252,7 @@ typedef struct {
     bool *found;
 } hits_pass;
 
-static void hits_pass_chunk(void *ctx, size_t chunk)
+static void hits_pass_chunk(void *ctx, uint32_t chunk)
 {
     hits_pass *p = ctx;
     size_t begin, end;
@@ -262,8 +266,11 @@ static void hits_pass_chunk(void *ctx, size_t chunk)
 bool arbor_accel_trace_hits(arbor_pool *pool, const arbor_accel *a, const arbor_ray *rays, size_t n, int threads,
                             arbor_hit *hits, bool *found, arbor_err *e)
 {
-    (void)pool; /* not used yet: the pool's parallel-for comes next */
     hits_pass pass = {a, rays, n, hits, found};
-    chunk_plan plan = {hits_pass_chunk, &pass, chunk_count(n), threads};
-    return run_chunks(&plan, e);
+    trace_threads t;
+    if (!check_count(n, e) || !trace_threads_init(&t, pool, threads, e))
+        return false;
+    trace_threads_run(&t, chunk_count(n), hits_pass_chunk, &pass);
+    trace_threads_free(&t);
+    return true;
 }

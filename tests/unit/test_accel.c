@@ -4,17 +4,22 @@
  * a random soup: 100k random rays (closest hit and any hit) and PROTOCOL.md's
  * primary rays, and rays aimed through closed meshes' vertices and edges.
  * The brute-force answers are computed once per model and shared by all
- * eight trees.
+ * eight trees. Then builds on pools: the same tree on pools of any size,
+ * and cancelling, before a build starts and from another thread while it
+ * runs (leaks show under make asan).
  */
 #include <math.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "arbor/accel.h"
 #include "arbor/brute.h"
 #include "arbor/load.h"
 #include "arbor/procgen.h"
+#include "../../src/accel/accel_impl.h"
 #include "support.h"
 #include "unity.h"
 
@@ -277,6 +282,159 @@ static void test_rays_through_vertices_and_edges(void)
     arbor_mesh_free(&m);
 }
 
+/* ---- builds on pools, and cancelling ---- */
+
+/* The unit icosphere subdivided 6 times: 81920 triangles, enough for both
+ * kinds to fork and for the bvh's linear passes to split. */
+static void big_sphere(arbor_mesh *m)
+{
+    arbor_err e;
+    arbor_mesh_init(m);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_gen_sphere(m, 6, &e), e.msg);
+}
+
+static void what_of(char *what, size_t len, int k, int b, const char *how)
+{
+    snprintf(what, len, "%s %s %s", arbor_accel_kind_name((arbor_accel_kind)k),
+             arbor_builder_name((arbor_builder)b), how);
+}
+
+/* A build with opts.threads fixed makes the same tree, to the last digit of
+ * every statistic, on a pool of 1 or 2 workers or none. */
+static void test_pool_size_does_not_change_the_tree(void)
+{
+    arbor_mesh m;
+    big_sphere(&m);
+    arbor_err e;
+    arbor_pool *pools[3] = {NULL, arbor_pool_create(1, &e), arbor_pool_create(2, &e)};
+    TEST_ASSERT_NOT_NULL(pools[1]);
+    TEST_ASSERT_NOT_NULL(pools[2]);
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
+        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
+            arbor_tree_stats s[3];
+            for (int p = 0; p < 3; p++) {
+                arbor_build_opts o;
+                arbor_build_opts_init(&o, (arbor_accel_kind)k, (arbor_builder)b);
+                o.threads = 4;
+                o.pool = pools[p];
+                arbor_accel *tree = arbor_accel_build(&m, &o, &e);
+                TEST_ASSERT_NOT_NULL_MESSAGE(tree, e.msg);
+                arbor_accel_stats(tree, &s[p]);
+                s[p].build_ms = 0.0;
+                arbor_accel_free(tree);
+            }
+            char what[128];
+            what_of(what, sizeof what, k, b, "on pools of 0, 1, 2");
+            TEST_ASSERT_EQUAL_MEMORY_MESSAGE(&s[0], &s[1], sizeof s[0], what);
+            TEST_ASSERT_EQUAL_MEMORY_MESSAGE(&s[0], &s[2], sizeof s[0], what);
+        }
+    arbor_pool_destroy(pools[1]);
+    arbor_pool_destroy(pools[2]);
+    arbor_mesh_free(&m);
+}
+
+static void assert_cancelled(arbor_accel *tree, const arbor_err *e, const char *what)
+{
+    TEST_ASSERT_NULL_MESSAGE(tree, what);
+    TEST_ASSERT_EQUAL_INT_MESSAGE(ARBOR_ERR_CANCELLED, e->status, what);
+    TEST_ASSERT_EQUAL_STRING_MESSAGE("build cancelled", e->msg, what);
+}
+
+/* A flag set before the build: every tree fails at once. The builders
+ * themselves, called past accel.c's early check, stop at the root, free
+ * what they made and leave e alone. */
+static void test_build_cancelled_before_it_starts(void)
+{
+    arbor_mesh m;
+    big_sphere(&m);
+    arbor_err e;
+    arbor_pool *pool = arbor_pool_create(2, &e);
+    TEST_ASSERT_NOT_NULL(pool);
+    atomic_bool cancel = true;
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
+        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
+            char what[128];
+            what_of(what, sizeof what, k, b, "cancelled before");
+            arbor_build_opts o;
+            arbor_build_opts_init(&o, (arbor_accel_kind)k, (arbor_builder)b);
+            o.pool = pool;
+            o.threads = 2;
+            o.cancel = &cancel;
+            arbor_err_clear(&e);
+            assert_cancelled(arbor_accel_build(&m, &o, &e), &e, what);
+
+            accel_run run;
+            TEST_ASSERT_NULL(accel_run_init(&run, &o));
+            const arbor_accel_ops *ops = k == ARBOR_ACCEL_BVH ? &arbor_bvh_ops : &arbor_kd_ops;
+            arbor_tree_stats stats;
+            arbor_err_clear(&e);
+            TEST_ASSERT_NULL_MESSAGE(ops->build(&m, &o, &run, &stats, &e), what);
+            TEST_ASSERT_TRUE_MESSAGE(accel_stop(&run), what);
+            TEST_ASSERT_EQUAL_INT_MESSAGE(ARBOR_OK, e.status, what);
+        }
+    arbor_pool_destroy(pool);
+    arbor_mesh_free(&m);
+}
+
+typedef struct {
+    atomic_bool *cancel;
+    long delay_us;
+} canceller;
+
+static void *cancel_later(void *arg)
+{
+    const canceller *c = arg;
+    struct timespec ts = {c->delay_us / 1000000, (c->delay_us % 1000000) * 1000};
+    nanosleep(&ts, NULL);
+    atomic_store(c->cancel, true);
+    return NULL;
+}
+
+/* A flag set by another thread while the build runs, on a pool of 2 with
+ * the budget of 2 and of 1: the build fails with ARBOR_ERR_CANCELLED or
+ * returns a tree the validator accepts; nothing else. Every tree takes tens
+ * of milliseconds or more, so some of the delays must catch it mid-way. */
+static void test_build_cancelled_while_running(void)
+{
+    arbor_mesh m;
+    big_sphere(&m);
+    arbor_err e;
+    arbor_pool *pool = arbor_pool_create(2, &e);
+    TEST_ASSERT_NOT_NULL(pool);
+    const long delays_us[] = {1000, 5000, 20000};
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
+        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
+            char what[128];
+            what_of(what, sizeof what, k, b, "cancelled while running");
+            int cancelled = 0;
+            for (int threads = 1; threads <= 2; threads++)
+                for (size_t d = 0; d < sizeof delays_us / sizeof *delays_us; d++) {
+                    atomic_bool cancel = false;
+                    arbor_build_opts o;
+                    arbor_build_opts_init(&o, (arbor_accel_kind)k, (arbor_builder)b);
+                    o.pool = pool;
+                    o.threads = threads;
+                    o.cancel = &cancel;
+                    canceller c = {&cancel, delays_us[d]};
+                    pthread_t th;
+                    TEST_ASSERT_EQUAL_INT(0, pthread_create(&th, NULL, cancel_later, &c));
+                    arbor_err_clear(&e);
+                    arbor_accel *tree = arbor_accel_build(&m, &o, &e);
+                    pthread_join(th, NULL);
+                    if (tree == NULL) {
+                        assert_cancelled(tree, &e, what);
+                        cancelled++;
+                        continue;
+                    }
+                    TEST_ASSERT_TRUE_MESSAGE(arbor_accel_validate(tree, &e), e.msg);
+                    arbor_accel_free(tree);
+                }
+            TEST_ASSERT_TRUE_MESSAGE(cancelled > 0, what);
+        }
+    arbor_pool_destroy(pool);
+    arbor_mesh_free(&m);
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -286,5 +444,8 @@ int main(void)
     RUN_TEST(test_bunny);
     RUN_TEST(test_own_models);
     RUN_TEST(test_rays_through_vertices_and_edges);
+    RUN_TEST(test_pool_size_does_not_change_the_tree);
+    RUN_TEST(test_build_cancelled_before_it_starts);
+    RUN_TEST(test_build_cancelled_while_running);
     return UNITY_END();
 }

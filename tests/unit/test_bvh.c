@@ -624,10 +624,13 @@ static void test_validator_catches_corruption(void)
     test_random_soup(&m, 500, 17);
     arbor_build_opts o;
     arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
+    o.threads = 1;
+    accel_run run;
+    TEST_ASSERT_NULL(accel_run_init(&run, &o)); /* one thread: no pool */
     for (size_t k = 0; k < sizeof corruptions / sizeof corruptions[0]; k++) {
         arbor_tree_stats s;
         arbor_err e;
-        bvh_tree *t = arbor_bvh_ops.build(&m, &o, &s, &e);
+        bvh_tree *t = arbor_bvh_ops.build(&m, &o, &run, &s, &e);
         TEST_ASSERT_NOT_NULL(t);
         TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(t, &m, &s, &e), e.msg);
         corruptions[k](t, &s);

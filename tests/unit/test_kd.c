@@ -18,12 +18,15 @@
 #include "arbor/accel.h"
 #include "arbor/brute.h"
 #include "arbor/load.h"
-#include "arbor/sys.h"
+#include "arbor/pool.h"
 #include "support.h"
 #include "unity.h"
 
 #define RANDOM_RAYS 20000
 #define SPECIAL_RAYS 4000
+
+/* Brute force runs on it; created in main. */
+static arbor_pool *pool;
 
 void setUp(void) {}
 void tearDown(void) {}
@@ -277,19 +280,17 @@ typedef struct {
     size_t hits;
 } truth;
 
-/* arbor_brute_occluded over rays [begin, end), for arbor_fork_join. */
+/* arbor_brute_occluded over the rays, one ray per parallel loop index. */
 typedef struct {
     const arbor_mesh *m;
     const arbor_ray *rays;
     bool *occluded;
-    size_t begin, end;
 } occluded_job;
 
-static void occluded_run(void *arg)
+static void occluded_run(void *ctx, uint32_t i)
 {
-    occluded_job *j = arg;
-    for (size_t i = j->begin; i < j->end; i++)
-        j->occluded[i] = arbor_brute_occluded(j->m, &j->rays[i]);
+    occluded_job *j = ctx;
+    j->occluded[i] = arbor_brute_occluded(j->m, &j->rays[i]);
 }
 
 static void truth_compute(truth *ts, const arbor_mesh *m)
@@ -316,9 +317,9 @@ static void truth_compute(truth *ts, const arbor_mesh *m)
         else if (i % 3 == 2)
             ts->rays[i].tmax = 1.5f * diag * test_rng_float(&g);
     }
-    arbor_brute_intersect_many(NULL, m, ts->rays, ts->n, ts->hit, ts->found, 0);
-    occluded_job first = {m, ts->rays, ts->occluded, 0, ts->n / 2}, second = {m, ts->rays, ts->occluded, ts->n / 2, ts->n};
-    arbor_fork_join(occluded_run, &first, occluded_run, &second, true);
+    arbor_brute_intersect_many(pool, m, ts->rays, ts->n, ts->hit, ts->found, 0);
+    occluded_job job = {m, ts->rays, ts->occluded};
+    arbor_pool_parallel(pool, (uint32_t)ts->n, 0, occluded_run, &job);
     ts->hits = 0;
     for (size_t i = 0; i < ts->n; i++)
         ts->hits += ts->found[i];
@@ -689,6 +690,9 @@ static void test_bunny_validates(void) { check_shared_model("bunny.obj"); }
 
 int main(void)
 {
+    arbor_err e;
+    pool = arbor_pool_create(0, &e);
+    TEST_ASSERT_NOT_NULL(pool);
     UNITY_BEGIN();
     RUN_TEST(test_random_soup_every_builder);
     RUN_TEST(test_all_in_one_plane);
@@ -708,5 +712,7 @@ int main(void)
     RUN_TEST(test_galleon_validates);
     RUN_TEST(test_castle_validates);
     RUN_TEST(test_bunny_validates);
-    return UNITY_END();
+    int failures = UNITY_END();
+    arbor_pool_destroy(pool);
+    return failures;
 }
