@@ -9,7 +9,8 @@
  * ray sets are made once per mesh: primary from the protocol camera, diffuse
  * and shadow from the primary hits of a reference trace with the first
  * requested tree; every tracer is then timed on those same rays by
- * arbor_time_set (raysets.h), so their primary hits must agree.
+ * arbor_time_set (raysets.h), so their primary hits must agree. Builds,
+ * renders and traces all run on one pool, the caller's or the call's own.
  *
  * Ownership: the caller owns the mesh (unchanged during the call), the pool,
  * the cancel flag and the rows array. A row is a plain value (the model name
@@ -62,10 +63,13 @@ typedef struct {
     bool kinds[ARBOR_ACCEL_KIND_COUNT];  /* the tree kinds to measure */
     bool builders[ARBOR_BUILDER_COUNT];  /* the builders, for each kind */
     int runs;                            /* 1..ARBOR_BENCH_MAX_RUNS; each figure is their median */
-    int threads;                         /* build, render and trace threads; 0 = one per core */
+    int threads;                         /* build and trace threads, the caller included; 0 = as many
+                                          * as the pool has, or one per core without a pool */
     bool embree;                         /* add Embree's row and every row's ratio to it */
-    arbor_pool *pool;                    /* renders on it; NULL: a pool of `threads` for the call */
-    const atomic_bool *cancel;           /* NULL, or checked between measurements */
+    arbor_pool *pool;                    /* builds, renders, traces on it; NULL: a pool of `threads`
+                                          * for the call. Figures at N threads mean N threads only
+                                          * on a pool nothing else is using meanwhile. */
+    const atomic_bool *cancel;           /* NULL, or checked between measurements and by builds */
     arbor_bench_row_fn row_done;         /* NULL, or progress after each row */
     void *user;                          /* row_done's first argument */
 } arbor_bench_opts;

@@ -132,6 +132,7 @@ static bool measure_render(void *ctx, double *value, arbor_err *e)
 }
 
 typedef struct {
+    arbor_pool *pool;
     arbor_trace_kernel kernel;
     const void *tracer;
     const arbor_ray *rays;
@@ -141,14 +142,11 @@ typedef struct {
     arbor_tally tally; /* of the last run's pass */
 } set_measure;
 
-/* Timed without the pool (NULL): on exactly `threads` threads of its own
- * over a fixed partition, the same for every tracer, so figures at N
- * threads mean N threads whatever else the pool is doing. */
 static bool measure_set(void *ctx, double *value, arbor_err *e)
 {
     set_measure *s = ctx;
     arbor_set_timing t;
-    if (!arbor_time_set(NULL, s->kernel, s->tracer, s->rays, s->n, s->any_hit, s->threads, SET_MIN_MS, &t, e))
+    if (!arbor_time_set(s->pool, s->kernel, s->tracer, s->rays, s->n, s->any_hit, s->threads, SET_MIN_MS, &t, e))
         return false;
     s->tally = t.tally;
     *value = t.mrays_per_s;
@@ -183,6 +181,15 @@ typedef struct {
     size_t done, total;
 } bench_run;
 
+/* Builds run on the run's pool and threads, and stop when cancelled. */
+static void build_opts(const bench_run *b, arbor_accel_kind kind, arbor_builder builder, arbor_build_opts *opts)
+{
+    arbor_build_opts_init(opts, kind, builder);
+    opts->threads = b->threads;
+    opts->pool = b->pool;
+    opts->cancel = b->o->cancel;
+}
+
 /* Times the three sets with one tracer, filling the row's Mrays/s, hits, tsum. */
 static bool time_sets(const bench_run *b, arbor_trace_kernel kernel, const void *tracer, arbor_bench_row *row,
                       arbor_err *e)
@@ -190,7 +197,7 @@ static bool time_sets(const bench_run *b, arbor_trace_kernel kernel, const void 
     const arbor_ray *rays[ARBOR_SET_COUNT] = {b->sets.primary, b->sets.diffuse, b->sets.shadow};
     size_t n[ARBOR_SET_COUNT] = {b->sets.nprimary, b->sets.ndiffuse, b->sets.nshadow};
     for (int s = 0; s < ARBOR_SET_COUNT; s++) {
-        set_measure m = {kernel, tracer, rays[s], n[s], s == ARBOR_SET_SHADOW, b->threads, {0, 0.0}};
+        set_measure m = {b->pool, kernel, tracer, rays[s], n[s], s == ARBOR_SET_SHADOW, b->threads, {0, 0.0}};
         if (n[s] == 0) {
             row->mrays[s] = 0.0;
             continue;
@@ -233,8 +240,7 @@ static bool bench_tree(bench_run *b, arbor_accel_kind kind, arbor_builder builde
     build_measure bm;
     bm.mesh = b->mesh;
     bm.tree = NULL;
-    arbor_build_opts_init(&bm.opts, kind, builder);
-    bm.opts.threads = b->threads;
+    build_opts(b, kind, builder, &bm.opts);
     bool ok = median_of_runs(b->o->runs, b->o->cancel, measure_build, &bm, &row->build_ms, e);
     if (ok) {
         arbor_tree_stats s;
@@ -280,8 +286,7 @@ static bool make_sets(bench_run *b, arbor_err *e)
     if (!arbor_raysets_primary(b->mesh, &b->sets, e))
         return false;
     arbor_build_opts opts;
-    arbor_build_opts_init(&opts, (arbor_accel_kind)kind, (arbor_builder)builder);
-    opts.threads = b->threads;
+    build_opts(b, (arbor_accel_kind)kind, (arbor_builder)builder, &opts);
     arbor_accel *ref = arbor_accel_build(b->mesh, &opts, e);
     arbor_hit *hits = malloc(b->sets.nprimary * sizeof *hits);
     bool *found = malloc(b->sets.nprimary * sizeof *found);
@@ -345,7 +350,7 @@ bool arbor_bench_mesh(const char *model_name, const arbor_mesh *m, const arbor_b
     b.o = o;
     b.model = model_name;
     b.mesh = m;
-    b.threads = o->threads > 0 ? o->threads : arbor_cpu_count();
+    b.threads = o->threads > 0 ? o->threads : o->pool != NULL ? arbor_pool_threads(o->pool) : arbor_cpu_count();
     b.rows = rows;
     b.total = arbor_bench_row_count(o);
     b.pool = o->pool != NULL ? o->pool : arbor_pool_create(b.threads, e);

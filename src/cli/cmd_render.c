@@ -134,7 +134,7 @@ static int parse_args(int argc, char **argv, render_args *a)
     return -1;
 }
 
-static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_accel *tree)
+static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_accel *tree, arbor_pool *pool)
 {
     arbor_err err;
     arbor_render_params params;
@@ -147,11 +147,6 @@ static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_acce
     params.ao_samples = a->ao_samples;
     params.seed = (uint64_t)a->seed;
     params.count_primary = a->counts;
-    arbor_pool *pool = arbor_pool_create(a->threads, &err);
-    if (pool == NULL) {
-        fprintf(stderr, "arbord render: %s\n", err.msg);
-        return 1;
-    }
     arbor_frame *frame = arbor_render(pool, tree, &params, &err);
     int status = 0;
     if (frame == NULL) {
@@ -176,7 +171,6 @@ static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_acce
         }
         arbor_frame_release(frame);
     }
-    arbor_pool_destroy(pool);
     return status;
 }
 
@@ -199,21 +193,31 @@ int cmd_render(int argc, char **argv)
     for (uint32_t w = 0; w < mesh.nwarnings; w++)
         fprintf(stderr, "arbord render: warning: %s\n", mesh.warnings[w]);
     printf("model %s: %u triangles, load %.1f ms\n", a.model, mesh.ntris, arbor_now_ms() - t0);
-    arbor_build_opts opts;
-    arbor_build_opts_init(&opts, a.kind, a.builder);
-    opts.threads = a.threads;
-    arbor_accel *tree = arbor_accel_build(&mesh, &opts, &err);
-    if (tree == NULL) {
-        fprintf(stderr, "arbord render: build %s %s: %s\n", arbor_accel_kind_name(a.kind),
-                arbor_builder_name(a.builder), err.msg);
+    /* one pool for the whole command: the build and the frame share its workers */
+    arbor_pool *pool = arbor_pool_create(a.threads, &err);
+    if (pool == NULL) {
+        fprintf(stderr, "arbord render: %s\n", err.msg);
         arbor_mesh_free(&mesh);
         return 1;
     }
-    arbor_tree_stats stats;
-    arbor_accel_stats(tree, &stats);
-    printf("build %s %s: %.1f ms\n", arbor_accel_kind_name(a.kind), arbor_builder_name(a.builder), stats.build_ms);
-    int status = render_model(&a, &mesh, tree);
-    arbor_accel_free(tree);
+    arbor_build_opts opts;
+    arbor_build_opts_init(&opts, a.kind, a.builder);
+    opts.threads = a.threads;
+    opts.pool = pool;
+    arbor_accel *tree = arbor_accel_build(&mesh, &opts, &err);
+    int status = 1;
+    if (tree == NULL) {
+        fprintf(stderr, "arbord render: build %s %s: %s\n", arbor_accel_kind_name(a.kind),
+                arbor_builder_name(a.builder), err.msg);
+    } else {
+        arbor_tree_stats stats;
+        arbor_accel_stats(tree, &stats);
+        printf("build %s %s: %.1f ms\n", arbor_accel_kind_name(a.kind), arbor_builder_name(a.builder),
+               stats.build_ms);
+        status = render_model(&a, &mesh, tree, pool);
+        arbor_accel_free(tree);
+    }
+    arbor_pool_destroy(pool);
     arbor_mesh_free(&mesh);
     return status;
 }

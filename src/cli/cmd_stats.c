@@ -91,6 +91,13 @@ int cmd_stats(int argc, char **argv)
         printf("model %s: %u triangles, %u vertices\n", model, mesh.ntris, mesh.nverts);
         print_header();
     }
+    /* one pool for every build of the command */
+    arbor_pool *pool = arbor_pool_create(threads, &err);
+    if (pool == NULL) {
+        fprintf(stderr, "arbord stats: %s\n", err.msg);
+        arbor_mesh_free(&mesh);
+        return 1;
+    }
     int status = 0;
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT && status == 0; k++) {
         if (!all_kinds && k != (int)kind)
@@ -101,6 +108,7 @@ int cmd_stats(int argc, char **argv)
             arbor_build_opts opts;
             arbor_build_opts_init(&opts, (arbor_accel_kind)k, (arbor_builder)b);
             opts.threads = threads;
+            opts.pool = pool;
             arbor_accel *tree = arbor_accel_build(&mesh, &opts, &err);
             if (tree == NULL) {
                 fprintf(stderr, "arbord stats: %s %s: %s\n", arbor_accel_kind_name((arbor_accel_kind)k),
@@ -122,6 +130,7 @@ int cmd_stats(int argc, char **argv)
             }
         }
     }
+    arbor_pool_destroy(pool);
     arbor_mesh_free(&mesh);
     return status;
 }
