@@ -103,6 +103,34 @@ arbor_accel *arbor_accel_build(const arbor_mesh *m, const arbor_build_opts *o, a
 bool arbor_accel_intersect(const arbor_accel *a, arbor_ray *r, arbor_hit *h);
 /* The same, also adding the work done to *c. */
 bool arbor_accel_intersect_counted(const arbor_accel *a, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
+/* One node of a tree as the inspectors see it (the viewer's box overlay and
+ * ray path). box: a bvh node's bounds, a kd node's cell; depth: the root
+ * is 0; tris: a leaf's triangles (walk) or those a ray tested there
+ * (traced); tests: the node steps a ray made there (traced: at a bvh inner
+ * node the child boxes tested, at a kd node 1; 0 in a walk). */
+typedef struct {
+    arbor_aabb box;
+    uint32_t depth;
+    bool leaf;
+    uint32_t tris, tests;
+} arbor_node_info;
+
+/* Called per node; a walk stops when it returns false (a trace does not). */
+typedef bool (*arbor_node_fn)(void *user, const arbor_node_info *n);
+
+/* Every node down to max_depth, depth first, parents before children: the
+ * bvh's binary tree (the one arbor_accel_stats describes), the kd tree's
+ * cells. */
+void arbor_accel_walk(const arbor_accel *a, uint32_t max_depth, arbor_node_fn fn, void *user);
+
+/* arbor_accel_intersect_counted, also calling visit at every node the
+ * traversal visits, in visiting order (the bvh: nodes of the wide tree that
+ * rays traverse). The sums of the visited nodes' tests and tris equal *c's
+ * nodes and tris. The same traversal as the plain query, with the visitor
+ * compiled out there. */
+bool arbor_accel_intersect_traced(const arbor_accel *a, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c,
+                                  arbor_node_fn visit, void *user);
+
 /* Any hit in (r->tmin, r->tmax). */
 bool arbor_accel_occluded(const arbor_accel *a, const arbor_ray *r);
 

@@ -133,6 +133,17 @@ bool arbor_accel_intersect_counted(const arbor_accel *a, arbor_ray *r, arbor_hit
     return a->ops->intersect_counted(a->impl, r, h, c);
 }
 
+bool arbor_accel_intersect_traced(const arbor_accel *a, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c,
+                                  arbor_node_fn visit, void *user)
+{
+    return a->ops->intersect_traced(a->impl, r, h, c, visit, user);
+}
+
+void arbor_accel_walk(const arbor_accel *a, uint32_t max_depth, arbor_node_fn fn, void *user)
+{
+    a->ops->walk(a->impl, max_depth, fn, user);
+}
+
 bool arbor_accel_occluded(const arbor_accel *a, const arbor_ray *r)
 {
     return a->ops->occluded(a->impl, r);

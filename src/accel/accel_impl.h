@@ -59,6 +59,9 @@ typedef struct {
     bool (*intersect)(const void *impl, arbor_ray *r, arbor_hit *h);
     bool (*intersect_counted)(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
     bool (*occluded)(const void *impl, const arbor_ray *r);
+    bool (*intersect_traced)(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c,
+                             arbor_node_fn visit, void *user);
+    void (*walk)(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user);
     /* See arbor_accel_validate; stats are the ones build filled. */
     bool (*validate)(const void *impl, const arbor_mesh *m, const arbor_tree_stats *stats, arbor_err *e);
     void (*destroy)(void *impl);

@@ -152,6 +152,37 @@ static void bvh_destroy(void *impl)
     bvh_tree_free(impl);
 }
 
+/* The binary tree depth first, parents before children, down to max_depth. */
+void bvh_walk(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user)
+{
+    const bvh_tree *t = impl;
+    if (t->nnodes == 0)
+        return;
+    struct {
+        uint32_t node, depth;
+    } stack[BVH_MAX_DEPTH + 1];
+    uint32_t sp = 0;
+    stack[sp].node = 0;
+    stack[sp++].depth = 0;
+    while (sp > 0) {
+        sp--;
+        uint32_t i = stack[sp].node, depth = stack[sp].depth;
+        const bvh_node *n = &t->nodes[i];
+        bool leaf = n->count > 0;
+        arbor_node_info info = {bvh_node_box(n), depth, leaf, leaf ? n->count : 0, 0};
+        if (!fn(user, &info))
+            return;
+        if (leaf || depth == max_depth)
+            continue;
+        /* right below left, so the left subtree comes first */
+        stack[sp].node = n->index;
+        stack[sp++].depth = depth + 1;
+        stack[sp].node = i + 1;
+        stack[sp++].depth = depth + 1;
+    }
+}
+
 const arbor_accel_ops arbor_bvh_ops = {
-    bvh_build, bvh_intersect, bvh_intersect_counted, bvh_occluded, bvh_validate, bvh_destroy,
+    bvh_build,        bvh_intersect, bvh_intersect_counted, bvh_occluded,
+    bvh_intersect_traced, bvh_walk, bvh_validate,        bvh_destroy,
 };

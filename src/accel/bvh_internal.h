@@ -100,6 +100,9 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, 
 bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h);
 bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
 bool bvh_occluded(const void *impl, const arbor_ray *r);
+bool bvh_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
+                          void *user);
+void bvh_walk(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user);
 
 /* Arrays of nodes and packs are 64-byte aligned, so that no node straddles
  * more cache lines than it must. Both builds allocate them for the worst

@@ -178,14 +178,53 @@ typedef struct {
     float t;
 } stack_entry;
 
+/* Where the traversal is, for a visitor: the box it entered the node by and
+ * the node's depth in the wide tree. */
+typedef struct {
+    arbor_aabb box;
+    uint32_t depth;
+} visit_place;
+
+static arbor_aabb lane_box(const bvh_wide_node *n, int c)
+{
+    arbor_aabb b = {vec3(n->box[0][c], n->box[1][c], n->box[2][c]), vec3(n->box[3][c], n->box[4][c], n->box[5][c])};
+    return b;
+}
+
+/* The root's box: the union of its children's. */
+static arbor_aabb root_box(const bvh_tree *t)
+{
+    arbor_aabb b = {vec3(INFINITY, INFINITY, INFINITY), vec3(-INFINITY, -INFINITY, -INFINITY)};
+    for (int c = 0; c < BVH_WIDTH; c++)
+        if (t->wide[0].child[c] != 0) {
+            arbor_aabb l = lane_box(&t->wide[0], c);
+            b.lo = vec3_min(b.lo, l.lo);
+            b.hi = vec3_max(b.hi, l.hi);
+        }
+    return b;
+}
+
+static void visit_node(arbor_node_fn visit, void *user, const visit_place *at, bool leaf, uint32_t tris,
+                       uint32_t tests)
+{
+    arbor_node_info info = {at->box, at->depth, leaf, tris, tests};
+    visit(user, &info);
+}
+
 /* The closest hit (any_hit false) or the first found (any_hit true) in
  * (r->tmin, r->tmax); fills *h on a hit unless h is NULL. counts, when not
- * NULL, gets the child boxes and the triangles tested. */
+ * NULL, gets the child boxes and the triangles tested; visit, when not
+ * NULL, each node visited (the inspector's ray path). counts and visit are
+ * compile-time NULL in the plain queries, which lose their code. */
 BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit, arbor_hit *h,
-                             arbor_trace_counts *counts)
+                             arbor_trace_counts *counts, arbor_node_fn visit, void *user)
 {
     if (t->nwide == 0)
         return false;
+    visit_place at = {{vec3(0, 0, 0), vec3(0, 0, 0)}, 0};
+    visit_place places[BVH_MAX_DEPTH * (BVH_WIDTH - 1)]; /* the stack's places; untouched without visit */
+    if (visit)
+        at.box = root_box(t);
     box_ray q;
     box_ray_setup(&q, r);
     tri_ray tq;
@@ -205,6 +244,12 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             if (counts)
                 for (int c = 0; c < BVH_WIDTH; c++)
                     counts->nodes += n->child[c] != 0;
+            if (visit) {
+                uint32_t tested = 0;
+                for (int c = 0; c < BVH_WIDTH; c++)
+                    tested += n->child[c] != 0;
+                visit_node(visit, user, &at, false, 0, tested);
+            }
             if (mask != 0) {
                 float te[4];
                 _mm_storeu_ps(te, entry);
@@ -212,6 +257,7 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                 mask &= mask - 1;
                 uint64_t near = n->child[c];
                 float t_near = te[c];
+                int near_lane = c;
                 const uint32_t base = sp;
                 /* push the rest; for a closest hit keep the nearest to go
                  * into and push in order, farthest deepest */
@@ -220,26 +266,37 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                     mask &= mask - 1;
                     uint64_t other = n->child[c];
                     float t_other = te[c];
+                    int other_lane = c;
                     if (!any_hit && t_other < t_near) {
                         uint64_t r0 = near;
                         float t0 = t_near;
-                        near = other, t_near = t_other;
-                        other = r0, t_other = t0;
+                        int l0 = near_lane;
+                        near = other, t_near = t_other, near_lane = other_lane;
+                        other = r0, t_other = t0, other_lane = l0;
                     }
                     uint32_t i = sp++;
                     if (!any_hit)
-                        for (; i > base && stack[i - 1].t < t_other; i--)
+                        for (; i > base && stack[i - 1].t < t_other; i--) {
                             stack[i] = stack[i - 1];
+                            if (visit)
+                                places[i] = places[i - 1];
+                        }
                     stack[i].ref = other;
                     stack[i].t = t_other;
+                    if (visit)
+                        places[i] = (visit_place){lane_box(n, other_lane), at.depth + 1};
                 }
                 ref = near;
+                if (visit)
+                    at = (visit_place){lane_box(n, near_lane), at.depth + 1};
                 continue;
             }
         } else {
             uint32_t tris = bvh_ref_tris(ref), p0 = bvh_ref_index(ref);
             if (counts)
                 counts->tris += tris;
+            if (visit)
+                visit_node(visit, user, &at, true, tris, 0);
             if (!tq_ready) {
                 tri_ray_setup(&tq, r);
                 tq_ready = true;
@@ -271,6 +328,8 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             sp--;
             if (any_hit || stack[sp].t <= tmax) { /* an any-hit query never lowers tmax */
                 ref = stack[sp].ref;
+                if (visit)
+                    at = places[sp];
                 break;
             }
         }
@@ -287,7 +346,7 @@ done:
 
 bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
 {
-    if (!bvh_traverse(impl, r, false, h, NULL))
+    if (!bvh_traverse(impl, r, false, h, NULL, NULL, NULL))
         return false;
     r->tmax = h->t;
     return true;
@@ -295,7 +354,16 @@ bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
 
 bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
 {
-    if (!bvh_traverse(impl, r, false, h, c))
+    if (!bvh_traverse(impl, r, false, h, c, NULL, NULL))
+        return false;
+    r->tmax = h->t;
+    return true;
+}
+
+bool bvh_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
+                          void *user)
+{
+    if (!bvh_traverse(impl, r, false, h, c, visit, user))
         return false;
     r->tmax = h->t;
     return true;
@@ -303,5 +371,5 @@ bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_t
 
 bool bvh_occluded(const void *impl, const arbor_ray *r)
 {
-    return bvh_traverse(impl, r, true, NULL, NULL);
+    return bvh_traverse(impl, r, true, NULL, NULL, NULL, NULL);
 }

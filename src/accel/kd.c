@@ -7,5 +7,6 @@
 #include "kd_internal.h"
 
 const arbor_accel_ops arbor_kd_ops = {
-    kd_build, kd_intersect, kd_intersect_counted, kd_occluded, kd_validate, kd_destroy,
+    kd_build,        kd_intersect, kd_intersect_counted, kd_occluded,
+    kd_intersect_traced, kd_walk_nodes, kd_validate, kd_destroy,
 };

@@ -161,6 +161,9 @@ void kd_destroy(void *impl);
 bool kd_intersect(const void *impl, arbor_ray *r, arbor_hit *h);
 bool kd_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
 bool kd_occluded(const void *impl, const arbor_ray *r);
+bool kd_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
+                         void *user);
+void kd_walk_nodes(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user);
 bool kd_validate(const void *impl, const arbor_mesh *m, const arbor_tree_stats *stats, arbor_err *e);
 
 /* Cell box accessors: component k of a box's lo / hi corner. */

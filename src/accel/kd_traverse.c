@@ -77,11 +77,34 @@ static inline bool kd_clip_root(const kd_tree *tree, const arbor_ray *r, const f
     return *tnear <= *tfar;
 }
 
-/* The one traversal. count == NULL and any_hit are compile-time constants
- * at every call, so each query gets its own copy without the code it does
- * not use. */
+/* A node's cell and depth, for a visitor. */
+typedef struct {
+    arbor_aabb cell;
+    uint32_t depth;
+} kd_place;
+
+/* The cells of an inner node's children: below and above its plane. */
+static void kd_child_cells(const kd_place *p, uint32_t axis, float split, kd_place *below, kd_place *above)
+{
+    *below = *above = (kd_place){p->cell, p->depth + 1};
+    float *hi = axis == 0 ? &below->cell.hi.x : axis == 1 ? &below->cell.hi.y : &below->cell.hi.z;
+    float *lo = axis == 0 ? &above->cell.lo.x : axis == 1 ? &above->cell.lo.y : &above->cell.lo.z;
+    *hi = split;
+    *lo = split;
+}
+
+static void kd_visit(arbor_node_fn visit, void *user, const kd_place *p, bool leaf, uint32_t tris)
+{
+    arbor_node_info info = {p->cell, p->depth, leaf, tris, 1};
+    visit(user, &info);
+}
+
+/* The one traversal. count == NULL, visit == NULL and any_hit are
+ * compile-time constants at every call, so each query gets its own copy
+ * without the code it does not use. */
 static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, arbor_ray *r, arbor_hit *h,
-                                                           arbor_trace_counts *count, bool any_hit)
+                                                           arbor_trace_counts *count, bool any_hit,
+                                                           arbor_node_fn visit, void *user)
 {
     const float o[3] = {r->o.x, r->o.y, r->o.z};
     const float d[3] = {r->d.x + 0.0f, r->d.y + 0.0f, r->d.z + 0.0f};  /* -0 becomes +0 */
@@ -97,6 +120,7 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
     const kd_node *nodes = tree->nodes;
     const arbor_mesh *mesh = tree->mesh;
     kd_todo todo[KD_MAX_DEPTH];
+    kd_place place = {tree->bounds, 0}, places[KD_MAX_DEPTH]; /* untouched without visit */
     int ntodo = 0;
     uint32_t at = 0;
     /* limit: the triangle tests' bound, just above best once there is a hit
@@ -108,18 +132,37 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
         if (count)
             count->nodes++;
         uint32_t axis = kd_node_kind(*n);
+        if (visit)
+            kd_visit(visit, user, &place, axis == KD_LEAF, axis == KD_LEAF ? kd_node_high(*n) : 0);
         if (axis != KD_LEAF) {
             float tsplit = (n->split - o[axis]) * inv[axis];
             uint32_t below = at + 1, above = kd_node_high(*n);
             uint32_t near = below_first[axis] ? below : above, far = below_first[axis] ? above : below;
+            kd_place near_place, far_place;
+            if (visit) {
+                kd_child_cells(&place, axis, n->split, &near_place, &far_place);
+                if (!below_first[axis]) {
+                    kd_place swap = near_place;
+                    near_place = far_place;
+                    far_place = swap;
+                }
+            }
             if (tsplit > tfar + fabsf(tfar) * KD_SPLIT_MARGIN) {
                 at = near;
+                if (visit)
+                    place = near_place;
             } else if (tsplit < tnear - fabsf(tnear) * KD_SPLIT_MARGIN) {
                 at = far;
+                if (visit)
+                    place = far_place;
             } else {
                 todo[ntodo].node = far;
                 todo[ntodo].tnear = tsplit > tnear ? tsplit : tnear;
                 todo[ntodo].tfar = tfar;
+                if (visit) {
+                    places[ntodo] = far_place;
+                    place = near_place;
+                }
                 ntodo++;
                 at = near;
                 tfar = tsplit < tfar ? tsplit : tfar;
@@ -154,6 +197,8 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
                 goto done;
             ntodo--;
             at = todo[ntodo].node;
+            if (visit)
+                place = places[ntodo];
             tnear = todo[ntodo].tnear;
             tfar = todo[ntodo].tfar;
         } while (tnear > stop);
@@ -171,16 +216,55 @@ done:
 
 bool kd_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
 {
-    return kd_trace(impl, r, h, NULL, false);
+    return kd_trace(impl, r, h, NULL, false, NULL, NULL);
 }
 
 bool kd_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
 {
-    return kd_trace(impl, r, h, c, false);
+    return kd_trace(impl, r, h, c, false, NULL, NULL);
+}
+
+bool kd_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
+                         void *user)
+{
+    return kd_trace(impl, r, h, c, false, visit, user);
+}
+
+/* Every node down to max_depth, depth first, with its cell. */
+void kd_walk_nodes(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user)
+{
+    const kd_tree *tree = impl;
+    if (tree->nodes == NULL)
+        return;
+    struct {
+        uint32_t node;
+        kd_place place;
+    } stack[KD_MAX_DEPTH + 2];
+    int sp = 0;
+    stack[sp].node = 0;
+    stack[sp++].place = (kd_place){tree->bounds, 0};
+    while (sp > 0) {
+        sp--;
+        uint32_t at = stack[sp].node;
+        kd_place p = stack[sp].place;
+        const kd_node *n = &tree->nodes[at];
+        uint32_t axis = kd_node_kind(*n);
+        arbor_node_info info = {p.cell, p.depth, axis == KD_LEAF, axis == KD_LEAF ? kd_node_high(*n) : 0, 0};
+        if (!fn(user, &info))
+            return;
+        if (axis == KD_LEAF || p.depth == max_depth)
+            continue;
+        kd_place below, above;
+        kd_child_cells(&p, axis, n->split, &below, &above);
+        stack[sp].node = kd_node_high(*n);
+        stack[sp++].place = above;
+        stack[sp].node = at + 1;
+        stack[sp++].place = below;
+    }
 }
 
 bool kd_occluded(const void *impl, const arbor_ray *r)
 {
     arbor_ray copy = *r;
-    return kd_trace(impl, &copy, NULL, NULL, true);
+    return kd_trace(impl, &copy, NULL, NULL, true, NULL, NULL);
 }

@@ -502,7 +502,12 @@ static void build_run(void *ctx, uint32_t task)
     arbor_store *s = b->store;
     arbor_build_opts opts;
     arbor_build_opts_init(&opts, b->kind, b->builder);
+    /* The build takes its threads from the pool it runs on (this task is on
+     * one of its workers) and stops when the model goes or the store shuts
+     * down. */
     opts.threads = s->config.build_threads;
+    opts.pool = s->config.pool;
+    opts.cancel = &b->cancel;
     arbor_err err;
     arbor_err_clear(&err);
     arbor_accel *accel = atomic_load(&b->cancel) ? NULL : arbor_accel_build(&b->model->mesh, &opts, &err);
