@@ -2,12 +2,15 @@
  * test_render.c - the tracer: known images of a quad that fills the view,
  * PROTOCOL.md's primary hits against brute force, PROTOCOL.md's secondary
  * sets, frames identical on 1 and 4 threads, frames in flight together,
- * every mode through PNG and back, cancelling, and parameter checks.
+ * every mode through PNG and back, cancelling, parameter checks, and
+ * regions: byte for byte the same rectangle of the whole frame (in heat mode
+ * given the whole frame's heat_scale), invalid regions refused.
  */
 #include <math.h>
 #include <png.h>
 #include <pthread.h>
 #include <stdatomic.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -542,6 +545,137 @@ static void test_bad_parameters_are_rejected(void)
     arbor_mesh_free(&m);
 }
 
+/* ---- regions ---- */
+
+/* Regions of the 150 x 110 soup frame: the whole of it, its corners,
+ * rectangles touching each edge, and ones off the 32-pixel tile grid. */
+static const arbor_region soup_regions[] = {
+    {0, 0, 150, 110}, {0, 0, 1, 1},   {149, 109, 1, 1}, {118, 78, 32, 32}, {7, 5, 45, 33},
+    {0, 40, 150, 3},  {32, 32, 64, 64}, {100, 0, 50, 110}, {149, 0, 1, 110}, {33, 71, 31, 39},
+};
+
+/* part is, byte for byte, the rectangle g of whole. */
+static void assert_crop(const arbor_frame_result *whole, const arbor_frame_result *part, arbor_region g,
+                        const char *what)
+{
+    TEST_ASSERT_EQUAL_INT_MESSAGE(g.w, part->width, what);
+    TEST_ASSERT_EQUAL_INT_MESSAGE(g.h, part->height, what);
+    for (int row = 0; row < g.h; row++) {
+        const uint8_t *want = whole->rgb + 3 * ((size_t)(g.y + row) * (size_t)whole->width + (size_t)g.x);
+        TEST_ASSERT_EQUAL_MEMORY_MESSAGE(want, part->rgb + 3 * (size_t)row * (size_t)g.w, 3 * (size_t)g.w, what);
+    }
+}
+
+/* Renders region g of the frame p (p's own region is ignored) and checks it
+ * against `whole`, the frame rendered entire. */
+static void check_region(const arbor_accel *a, const arbor_render_params *p, const arbor_frame_result *whole,
+                         arbor_region g)
+{
+    char what[96];
+    snprintf(what, sizeof what, "%s spp %d region %d,%d %dx%d", arbor_render_mode_name(p->mode), p->spp, g.x, g.y,
+             g.w, g.h);
+    arbor_render_params q = *p;
+    q.region = g;
+    arbor_frame *f = render_ok(pool4, a, &q);
+    const arbor_frame_result *r = arbor_frame_result_of(f);
+    assert_crop(whole, r, g, what);
+    if (p->mode == ARBOR_MODE_NORMALS) { /* one primary ray per sample, nothing else */
+        TEST_ASSERT_EQUAL_UINT64_MESSAGE((uint64_t)g.w * (uint64_t)g.h * (uint64_t)p->spp, r->rays, what);
+    }
+    if (p->mode == ARBOR_MODE_HEAT) {
+        TEST_ASSERT_EQUAL_DOUBLE_MESSAGE(whole->heat_scale, r->heat_scale, what);
+    }
+    arbor_frame_release(f);
+}
+
+static void check_every_region(const arbor_accel *a, const arbor_render_params *p, const arbor_frame_result *whole)
+{
+    for (size_t i = 0; i < sizeof soup_regions / sizeof soup_regions[0]; i++)
+        check_region(a, p, whole, soup_regions[i]);
+}
+
+/* Every mode but heat, at spp 1, 4 (the grid) and 3 (the Latin hypercube):
+ * a region's pixels are the whole frame's there. */
+static void test_regions_are_crops_of_the_whole_frame(void)
+{
+    arbor_mesh m;
+    make_soup(&m);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    const int spps[3] = {1, 4, 3};
+    for (int mode = 0; mode < ARBOR_MODE_COUNT; mode++) {
+        if (mode == ARBOR_MODE_HEAT)
+            continue;
+        for (int k = 0; k < 3; k++) {
+            arbor_render_params p;
+            soup_params(&p, &m, (arbor_render_mode)mode, spps[k]);
+            arbor_frame *whole = render_ok(pool4, a, &p);
+            check_every_region(a, &p, arbor_frame_result_of(whole));
+            arbor_frame_release(whole);
+        }
+    }
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+/* Heat colours depend on the scale: given the whole frame's heat_scale, a
+ * region is its crop; the whole frame given its own scale is unchanged. */
+static void test_heat_regions_with_the_whole_frames_scale(void)
+{
+    arbor_mesh m;
+    make_soup(&m);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_KD);
+    const int spps[2] = {1, 4};
+    for (int k = 0; k < 2; k++) {
+        arbor_render_params p;
+        soup_params(&p, &m, ARBOR_MODE_HEAT, spps[k]);
+        arbor_frame *whole = render_ok(pool4, a, &p);
+        const arbor_frame_result *w = arbor_frame_result_of(whole);
+        TEST_ASSERT_TRUE(w->heat_scale > 0.0 && w->heat_scale < w->heat_max);
+        p.heat_scale = w->heat_scale;
+        arbor_frame *again = render_ok(pool4, a, &p);
+        TEST_ASSERT_EQUAL_MEMORY(w->rgb, arbor_frame_result_of(again)->rgb, 150 * 110 * 3);
+        arbor_frame_release(again);
+        check_every_region(a, &p, w);
+        arbor_frame_release(whole);
+    }
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+static void test_bad_regions_are_rejected(void)
+{
+    arbor_mesh m;
+    make_quad(&m, 0);
+    arbor_render_params good, p;
+    quad_params(&good, &m, ARBOR_MODE_NORMALS); /* 64 x 48 */
+    arbor_err e;
+    const arbor_region fine[] = {{0, 0, 0, 0}, {0, 0, 64, 48}, {63, 47, 1, 1}, {32, 0, 32, 48}, {5, 7, 11, 13}};
+    for (size_t i = 0; i < sizeof fine / sizeof fine[0]; i++) {
+        p = good, p.region = fine[i];
+        TEST_ASSERT_TRUE_MESSAGE(arbor_render_params_validate(&p, &e), e.msg);
+    }
+    const arbor_region bad[] = {
+        {-1, 0, 8, 8},  {0, -1, 8, 8}, {0, 0, 0, 8},  {0, 0, 8, 0},   {0, 0, -8, 8},  {0, 0, 8, -8},
+        {57, 0, 8, 8},  {0, 41, 8, 8}, {64, 0, 1, 1}, {0, 48, 1, 1},  {0, 0, 65, 48}, {0, 0, 64, 49},
+        {5, 5, 0, 0},   {0, 0, 8192, 8192},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        p = good, p.region = bad[i];
+        assert_rejected(&p, "region");
+    }
+    /* submit checks too */
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    p = good, p.region = bad[6];
+    TEST_ASSERT_NULL(arbor_render_submit(pool1, a, &p, NULL, NULL, &e));
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(e.msg, "region"), e.msg);
+    p = good, p.heat_scale = -1.0;
+    assert_rejected(&p, "heat_scale");
+    p = good, p.heat_scale = NAN;
+    assert_rejected(&p, "heat_scale");
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
 int main(void)
 {
     arbor_err e;
@@ -561,6 +695,9 @@ int main(void)
     RUN_TEST(test_every_mode_round_trips_through_png);
     RUN_TEST(test_cancel_stops_a_big_frame_early);
     RUN_TEST(test_bad_parameters_are_rejected);
+    RUN_TEST(test_regions_are_crops_of_the_whole_frame);
+    RUN_TEST(test_heat_regions_with_the_whole_frames_scale);
+    RUN_TEST(test_bad_regions_are_rejected);
     int failures = UNITY_END();
     arbor_pool_destroy(pool1);
     arbor_pool_destroy(pool4);
