@@ -3,7 +3,6 @@
  * render_request.h). One table of fields drives both the JSON reader and
  * the query-string translation, so the two cannot disagree.
  */
-#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -265,6 +264,11 @@ bool render_spec_from_json(const cJSON *o, bool ray, render_spec *s, arbor_err *
         const field *f = find_field(fields, COUNT(fields), v->string);
         if (f == NULL || !(ray ? f->ray : f->render))
             return arbor_fail(e, ARBOR_ERR_INVALID, "unknown field '%s'", v->string);
+        /* A key given twice is refused, as in a query string, rather than
+         * letting the last one silently win. */
+        for (const cJSON *w = o->child; w != v; w = w->next)
+            if (strcmp(w->string, v->string) == 0)
+                return arbor_fail(e, ARBOR_ERR_INVALID, "%s is given twice", v->string);
         if (!read_named(v, s, e))
             return false;
     }
@@ -288,9 +292,11 @@ static cJSON *number_list(const char *text)
     const char *p = text;
     while (a != NULL) {
         char *end;
-        errno = 0;
         double d = strtod(p, &end);
-        if (end == p || errno != 0 || (*end != ',' && *end != '\0')) {
+        /* errno is not looked at: ERANGE comes with subnormals, which JSON
+         * accepts, and with overflow, whose inf the field's own check
+         * refuses by name. */
+        if (end == p || (*end != ',' && *end != '\0')) {
             cJSON_Delete(a);
             return NULL;
         }

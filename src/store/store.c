@@ -267,10 +267,12 @@ static void model_detach(arbor_store *s, uint32_t index, dropped *d)
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
         for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
             tree_slot *slot = &m->slots[k][b];
-            if (slot->state == ARBOR_TREE_READY)
+            if (slot->state == ARBOR_TREE_READY) {
                 d->trees[d->ntrees++] = slot->tree;
-            else if (slot->state == ARBOR_TREE_BUILDING)
+                slot->state = ARBOR_TREE_ABSENT;
+            } else if (slot->state == ARBOR_TREE_BUILDING) {
                 atomic_store(&slot->build->cancel, true);
+            }
             slot->tree = NULL;
         }
     memmove(&s->models[index], &s->models[index + 1], (s->nmodels - index - 1) * sizeof *s->models);
@@ -342,11 +344,18 @@ static void fail_nospace(arbor_store *s, uint64_t need, const char *what, arbor_
  * holds it, and those of its trees no frame holds. Lock held. */
 static uint64_t bytes_freed_by_detach(const arbor_model *m)
 {
-    uint64_t b = atomic_load(&m->refs) == 1 ? m->bytes : 0;
+    uint64_t b = 0;
+    int idle_trees = 0;
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
         for (int j = 0; j < ARBOR_BUILDER_COUNT; j++)
-            if (evictable(&m->slots[k][j]))
+            if (evictable(&m->slots[k][j])) {
                 b += m->slots[k][j].tree->bytes;
+                idle_trees++;
+            }
+    /* Each idle tree holds the model too; beyond those and the store's own,
+     * a reference is a frame or a request still using the mesh. */
+    if (atomic_load(&m->refs) == 1 + idle_trees)
+        b += m->bytes;
     return b;
 }
 
