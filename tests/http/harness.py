@@ -51,6 +51,8 @@ def test(func):
 
 
 def add_test(name, func, filename, line):
+    """A generated test (one case of a table): its failures are reported at the case's line."""
+    func.case_line = line
     TESTS.append((name, func, filename, line))
 
 
@@ -575,7 +577,7 @@ def parallel(n, fn, barrier=True):
         except BaseException as e:  # keep the exception as the result
             results[i] = e
 
-    ts = [threading.Thread(target=run, args=(i,)) for i in range(n)]
+    ts = [threading.Thread(target=run, args=(i,), daemon=True) for i in range(n)]
     for t in ts:
         t.start()
     for t in ts:

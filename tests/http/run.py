@@ -114,7 +114,7 @@ def main(argv):
                 if isinstance(e, KeyboardInterrupt):
                     raise
                 failures += 1
-                f, ln = where(e, filename, line)
+                f, ln = (filename, line) if hasattr(func, "case_line") else where(e, filename, line)
                 if isinstance(e, Fail):
                     msg = str(e)
                 else:
@@ -132,4 +132,7 @@ def main(argv):
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    rc = main(sys.argv[1:])
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(rc)  # do not wait for threads a failed test left behind

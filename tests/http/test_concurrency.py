@@ -113,7 +113,7 @@ def _start(d, body, out, key):
         except Exception as e:
             out[key] = (e, time.time())
         out[key + "_t0"] = t0
-    t = threading.Thread(target=run)
+    t = threading.Thread(target=run, daemon=True)
     t.start()
     return t
 

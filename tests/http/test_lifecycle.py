@@ -45,17 +45,21 @@ def test_sigterm_under_load_exits_0():
                 except Exception:
                     time.sleep(0.005)
 
-        ts = [threading.Thread(target=frame, args=(i,)) for i in range(4)]
-        ts += [threading.Thread(target=light) for _ in range(2)] + [threading.Thread(target=readyz)]
+        ts = [threading.Thread(target=frame, args=(i,), daemon=True) for i in range(4)]
+        ts += [threading.Thread(target=light, daemon=True) for _ in range(2)] + [threading.Thread(target=readyz, daemon=True)]
         for t in ts:
             t.start()
         end = time.time() + 20
-        while True:
-            q = expect_json(d.get("/api/stats"))["daemon"]["queue"]
-            if q["rendering"] + q["waiting"] >= 4:
-                break
-            check(time.time() < end, "the 4 heavy frames were never admitted: %r" % q)
-            time.sleep(0.01)
+        try:
+            while True:
+                q = expect_json(d.get("/api/stats"))["daemon"]["queue"]
+                if q["rendering"] + q["waiting"] >= 4:
+                    break
+                check(time.time() < end, "the 4 heavy frames were never admitted: %r" % q)
+                time.sleep(0.01)
+        except BaseException:
+            stop.set()
+            raise
         t0 = time.time()
         d.proc.send_signal(signal.SIGTERM)
         try:

@@ -194,7 +194,7 @@ def _while_rendering(d, name, action):
         except Exception as e:
             out["r"] = e
 
-    t = threading.Thread(target=frame)
+    t = threading.Thread(target=frame, daemon=True)
     t.start()
     end = time.time() + 20
     while True:
