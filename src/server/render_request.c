@@ -68,11 +68,11 @@ static bool read_number(const cJSON *v, const char *name, double lo, double hi, 
 
 static bool read_int(const cJSON *v, const char *name, int lo, int hi, int *out, arbor_err *e)
 {
-    double d;
-    if (!read_number(v, name, lo, hi, &d, e))
-        return false;
-    if (d != floor(d))
-        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a whole number, not %g", name, d);
+    if (!cJSON_IsNumber(v))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a whole number", name);
+    double d = v->valuedouble;
+    if (!isfinite(d) || d != floor(d) || d < lo || d > hi)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a whole number in %d..%d, not %g", name, lo, hi, d);
     *out = (int)d;
     return true;
 }
