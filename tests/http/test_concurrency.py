@@ -18,7 +18,9 @@ def lazy_daemon():
     bunny = os.path.join(SHARED, "bunny.obj")
     if os.path.exists(bunny):
         ms.append(bunny)
-    return shared("lazy", lambda: Daemon(ms, ["--threads", "2", "--prebuild", "none"], name="lazy daemon"))
+    # --queue 32: the 20 concurrent frames all fit (threads + queue)
+    return shared("lazy", lambda: Daemon(ms, ["--threads", "2", "--queue", "32", "--prebuild", "none"],
+                                         name="lazy daemon"))
 
 
 def _big():
@@ -158,7 +160,8 @@ def test_stream_key_cancels_rendering_frame():
 
 @test
 def test_stream_key_cancels_queued_frame():
-    """--threads 1 --queue 2: A renders (no stream), B waits with stream s, C with stream s: B 409, C 200, A 200."""
+    """--threads 1 --queue 2: A renders (no stream), B (as heavy) waits with stream s, C with stream s:
+    B 409, C 200, A 200. (B is heavy because the pool shares its workers among admitted frames.)"""
     d = Daemon([our("menger.obj"), our("cornell.obj")], ["--threads", "1", "--queue", "2", "--max-pixels", "256M"],
                name="queued-stream daemon")
     try:
@@ -172,7 +175,7 @@ def _queued_stream(d):
     out = {}
     ta = _start(d, dict(BIG, width=768, height=768), out, "a")
     _wait_queue(d, 1)
-    tb = _start(d, {"model": "cornell", "width": 32, "height": 32, "stream": "s-queued"}, out, "b")
+    tb = _start(d, dict(BIG, width=768, height=768, seed=5, stream="s-queued"), out, "b")
     _wait_queue(d, 1, 1)
     tc = _start(d, {"model": "cornell", "width": 32, "height": 32, "stream": "s-queued", "seed": 2}, out, "c")
     for t in (ta, tb, tc):

@@ -81,7 +81,7 @@ def _reads_open(d):
     expect_ok(d.post("/api/render", {"model": "cornell", "width": 16, "height": 16}))
     expect_ok(d.get("/api/render?model=cornell&width=16&height=16"))
     expect_ok(d.post("/api/ray", {"model": "cornell", "width": 16, "height": 16, "x": 8, "y": 8}))
-    for p in ("/api/models", "/api/models/cornell", "/api/stats", "/metrics", "/healthz", "/readyz", "/"):
+    for p in ("/api/models", "/api/models/cornell", "/api/stats", "/metrics", "/healthz", "/readyz"):
         expect_ok(d.get(p))
 
 
