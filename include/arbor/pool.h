@@ -47,7 +47,9 @@
  * threads, however deep the recursion forks). The thread that starts the
  * work counts as one; a helper task takes one of the rest for as long as it
  * works and gives it back when it runs out of indices, and one that finds
- * none left returns at once.
+ * none left returns at once. A loop queues its helpers even when the budget
+ * has none spare at the time, so that a thread freed by another loop of the
+ * same work takes over what the caller has not reached yet.
  */
 #ifndef ARBOR_POOL_H
 #define ARBOR_POOL_H
@@ -91,6 +93,7 @@ void arbor_job_release(arbor_job *j);
  * caller owns, shared by the loops that name it. */
 typedef struct {
     atomic_int spare; /* threads not yet taken, besides the one that started the work */
+    int helpers;      /* threads besides that one: at most this many helpers per loop */
 } arbor_pool_budget;
 
 /* A budget of `threads` threads, the calling thread included (0 = as many

@@ -314,6 +314,7 @@ void arbor_pool_budget_init(arbor_pool_budget *b, const arbor_pool *p, uint32_t 
     if (threads > (uint32_t)INT32_MAX)
         threads = (uint32_t)INT32_MAX;
     atomic_init(&b->spare, (int)threads - 1);
+    b->helpers = (int)threads - 1;
 }
 
 static bool budget_take(arbor_pool_budget *b)
@@ -414,11 +415,11 @@ void arbor_pool_parallel_within(arbor_pool *p, arbor_pool_budget *b, uint32_t n,
                                 void *ctx)
 {
     /* No more helpers than indices to share, workers, or threads the budget
-     * has spare now: with none spare the loop costs no allocation at all. */
-    int spare = atomic_load_explicit(&b->spare, memory_order_relaxed);
-    uint32_t helpers = p != NULL && n > 1 && spare > 0 ? n - 1 : 0;
-    if (helpers > (uint32_t)spare)
-        helpers = (uint32_t)spare;
+     * allows besides the caller (not only those spare now: see pool.h). A
+     * budget of one thread costs the loop no allocation at all. */
+    uint32_t helpers = p != NULL && n > 1 && b->helpers > 0 ? n - 1 : 0;
+    if (helpers > (uint32_t)b->helpers)
+        helpers = (uint32_t)b->helpers;
     if (p != NULL && helpers > (uint32_t)p->nthreads)
         helpers = (uint32_t)p->nthreads;
     arbor_job *j = helpers > 0 ? loop_start(p, b, n, helpers, fn, ctx) : NULL;

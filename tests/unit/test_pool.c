@@ -372,8 +372,8 @@ static void test_parallel_stays_within_max_threads(void)
     for (uint32_t max = 1; max <= 3; max++) {
         loop_log *l = new_loop_log();
         l->nap_us = 2000;
-        arbor_pool_parallel(p, 40, max, loop_index, l);
-        assert_each_ran_once(l, 40);
+        arbor_pool_parallel(p, 100, max, loop_index, l);
+        assert_each_ran_once(l, 100);
         TEST_ASSERT_TRUE(atomic_load(&l->most_running) <= (int)max);
         if (max > 1) {
             TEST_ASSERT_TRUE(atomic_load(&l->most_running) > 1);
