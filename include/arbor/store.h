@@ -116,6 +116,11 @@ const char *arbor_model_name(const arbor_model *m);
 const char *arbor_model_file(const arbor_model *m);
 uint64_t arbor_model_version(const arbor_model *m);
 bool arbor_model_uploaded(const arbor_model *m);
+/* The identity of the file the model was read from (arbor_file_stamp, taken
+ * before reading it), so that a daemon sharing its models folder with others
+ * sees when the file was replaced; 0 (the default) when not known. */
+uint64_t arbor_model_stamp(const arbor_model *m);
+void arbor_model_set_stamp(arbor_model *m, uint64_t stamp);
 uint64_t arbor_model_bytes(const arbor_model *m);
 const arbor_mesh *arbor_model_mesh(const arbor_model *m);
 void arbor_model_tree_info(arbor_store *s, arbor_model *m, arbor_accel_kind kind, arbor_builder builder,

@@ -330,6 +330,9 @@ static void load_one(arbor_server *server, arbor_store *store, const char *dir, 
     arbor_mesh mesh;
     arbor_err err;
     double t0 = arbor_now_ms();
+    /* Taken before reading, so that a replacement while it loads is seen
+     * as a newer file by the next request (the shared folder, sync.c). */
+    uint64_t stamp = arbor_file_stamp(path);
     char *real = realpath(path, NULL);
     if (!arbor_load_model_capped(path, (size_t)(max_upload > ARBOR_LOAD_MAX_BYTES ? max_upload : ARBOR_LOAD_MAX_BYTES),
                                  &mesh, &err)) {
@@ -344,8 +347,10 @@ static void load_one(arbor_server *server, arbor_store *store, const char *dir, 
         } else {
             fprintf(stderr, "arbord: loaded %s (%u triangles) in %.0f ms\n", name, ntris, arbor_now_ms() - t0);
             arbor_model *m = arbor_store_acquire_model(store, name);
-            if (m != NULL)
+            if (m != NULL) {
+                arbor_model_set_stamp(m, stamp);
                 prebuild_model(server, store, m, p);
+            }
             arbor_model_release(m);
         }
     }

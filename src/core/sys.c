@@ -1,4 +1,5 @@
-/* sys.c - clock and core count (see include/arbor/sys.h). */
+/* sys.c - clock, core count and file identity (see include/arbor/sys.h). */
+#include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -15,4 +16,21 @@ int arbor_cpu_count(void)
 {
     long n = sysconf(_SC_NPROCESSORS_ONLN);
     return n > 0 ? (int)n : 1;
+}
+
+/* FNV-1a over the fields that change when a file is replaced or rewritten. */
+uint64_t arbor_file_stamp(const char *path)
+{
+    struct stat st;
+    if (stat(path, &st) != 0)
+        return 0;
+    uint64_t fields[5] = {(uint64_t)st.st_dev, (uint64_t)st.st_ino, (uint64_t)st.st_size,
+                          (uint64_t)st.st_mtim.tv_sec, (uint64_t)st.st_mtim.tv_nsec};
+    uint64_t h = 14695981039346656037ull;
+    for (int i = 0; i < 5; i++)
+        for (int b = 0; b < 8; b++) {
+            h ^= (fields[i] >> (8 * b)) & 0xff;
+            h *= 1099511628211ull;
+        }
+    return h != 0 ? h : 1;
 }

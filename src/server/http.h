@@ -27,6 +27,7 @@
 typedef struct http_req http_req;
 typedef struct render_req render_req;
 typedef struct job_table job_table;
+typedef struct sync_load sync_load;
 
 
 struct arbor_server {
@@ -50,6 +51,7 @@ struct arbor_server {
     render_req *frames;             /* frames admitted and not yet answered (list) */
     uint32_t nframes;               /* its length: admission counts it */
     uint32_t inflight;              /* requests suspended, waiting for a worker */
+    sync_load *loads;               /* models being loaded from the shared folder (sync.c) */
     uint64_t next_request_id;
 
     pthread_t reaper;               /* cancels frames past --frame-timeout */
@@ -80,6 +82,8 @@ struct http_req {
     unsigned status;
     uint64_t bytes;
     bool suspended;                  /* polling thread only */
+    bool redispatch;                 /* resumed to run its route again (sync.c loaded its model) */
+    uint8_t sync_rounds;             /* models loaded for it so far (sync.c) */
 };
 
 /* ---- replies (server.c) ---- */
@@ -132,9 +136,25 @@ void frames_cancel_all(arbor_server *s);
 void frames_reap(arbor_server *s, double now_ms);
 void frames_count(arbor_server *s, uint32_t *waiting, uint32_t *rendering);
 /* Reads a render or ray request and the model it names (a reference);
- * false with the reply made. */
+ * false with the reply made, or r suspended while sync.c loads the model. */
 bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_params *params,
                          arbor_model **model);
+
+/* sync.c: models as the shared models folder has them. sync_model returns
+ * a reference to the model `name`, or NULL when r has been answered (404:
+ * no such model, here or in the folder) or suspended while the model is
+ * loaded from the folder, after which r's route runs again. sync_models
+ * does the same for every model (GET /api/models): false when r was
+ * answered or suspended. sync_in_folder: whether the folder has a file for
+ * `name`. */
+arbor_model *sync_model(http_req *r, const char *name);
+bool sync_models(http_req *r);
+bool sync_in_folder(const arbor_server *s, const char *name);
+
+/* server.c: frames and rays are refused (503) until the daemon is ready,
+ * so that a load balancer passes them to a node that is; false with the
+ * answer made. */
+bool http_ready_for_frames(http_req *r);
 
 /* jobs.c */
 job_table *jobs_create(arbor_pool *pool);

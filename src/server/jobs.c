@@ -329,10 +329,8 @@ void route_bench(http_req *r)
     cJSON_Delete(body);
     if (j == NULL)
         http_reply_error(r, 507, "insufficient_memory", "out of memory");
-    if (ok && (j->model = arbor_store_acquire_model(r->srv->store, j->model_name)) == NULL) {
-        http_reply_error(r, 404, "not_found", "no model named '%s'", j->model_name);
+    if (ok && (j->model = sync_model(r, j->model_name)) == NULL)
         ok = false;
-    }
     if (ok) {
         j->total = arbor_bench_row_count(&j->opts);
         j->rows = calloc(j->total, sizeof *j->rows);

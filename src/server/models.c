@@ -20,6 +20,7 @@
 #include <zlib.h>
 
 #include "arbor/load.h"
+#include "arbor/sys.h"
 #include "http.h"
 
 #define UPLOAD_FILES_MAX 16
@@ -355,16 +356,21 @@ static void upload_run(void *ctx, uint32_t task)
     arbor_err err;
     arbor_err_clear(&err);
     char file[PATH_MAX], why[PATH_MAX + 128];
+    uint64_t version = 0, stamp = 0;
     unsigned flags = ARBOR_ADD_UPLOADED | (j->replace ? ARBOR_ADD_REPLACE : 0);
     if (!arbor_load_model_capped(j->path, s->config.max_upload, &mesh, &err)) {
         strip_dir(err.msg, r->parts->dir);
         http_reply_error(r, 400, "bad_request", "%s", err.msg);
     } else if (!save_upload(r->parts, s->config.upload_dir, j->name, file, sizeof file, why, sizeof why)) {
         http_reply_error(r, 507, "insufficient_storage", "%s", why);
-    } else if (!arbor_store_add_model(s->store, j->name, file, &mesh, flags, NULL, &err)) {
+    } else if ((stamp = arbor_file_stamp(file)) == 0) { /* taken at once: what sync.c compares */
+        http_reply_error(r, 507, "insufficient_storage", "the saved upload %s is gone", file);
+    } else if (!arbor_store_add_model(s->store, j->name, file, &mesh, flags, &version, &err)) {
         http_reply_err(r, &err);
     } else {
         arbor_model *m = arbor_store_acquire_model(s->store, j->name);
+        if (m != NULL && arbor_model_version(m) == version)
+            arbor_model_set_stamp(m, stamp);
         if (m != NULL) {
             http_reply_json(r, j->replaced ? 200 : 201, model_json(s, m));
             arbor_model_release(m);
@@ -412,8 +418,10 @@ static void upload(http_req *r, const char *name)
     bool ply, gz;
     if (http_method_is(r, "POST") && !sniff_model(r, part, r->srv->config.max_upload, &ply, &gz))
         return;
+    /* It exists when this daemon has it or the shared folder does (uploaded
+     * through another daemon). */
     arbor_model *old = arbor_store_acquire_model(r->srv->store, name);
-    bool exists = old != NULL;
+    bool exists = old != NULL || sync_in_folder(r->srv, name);
     arbor_model_release(old);
     if (exists && !replace_asked(r)) {
         http_reply_error(r, 409, "conflict", "model '%s' exists (replace it with ?replace=1)", name);
@@ -446,9 +454,11 @@ static void delete_model(http_req *r, const char *name)
 {
     if (!http_may_write(r))
         return;
-    arbor_model *m = arbor_store_acquire_model(r->srv->store, name);
+    arbor_model *m = sync_model(r, name);
+    if (m == NULL)
+        return;
     char file[PATH_MAX] = "";
-    if (m != NULL && arbor_model_uploaded(m))
+    if (arbor_model_uploaded(m))
         snprintf(file, sizeof file, "%s", arbor_model_file(m));
     arbor_model_release(m);
     arbor_err err;
@@ -457,7 +467,9 @@ static void delete_model(http_req *r, const char *name)
         return;
     }
     /* An uploaded model's file goes with it, or the next start would load it
-     * again; a model the operator put in the folder keeps its file. */
+     * again, and so do the other daemons sharing the folder (sync.c); a model
+     * the operator put in the folder keeps its file (and is loaded again by
+     * the next request for it). */
     if (file[0] != '\0')
         unlink(file);
     cJSON *o = cJSON_CreateObject();
@@ -467,11 +479,9 @@ static void delete_model(http_req *r, const char *name)
 
 static void get_model(http_req *r, const char *name)
 {
-    arbor_model *m = arbor_store_acquire_model(r->srv->store, name);
-    if (m == NULL) {
-        http_reply_error(r, 404, "not_found", "no model named '%s'", name);
+    arbor_model *m = sync_model(r, name);
+    if (m == NULL)
         return;
-    }
     http_reply_json(r, 200, model_json(r->srv, m));
     arbor_model_release(m);
 }
@@ -479,11 +489,9 @@ static void get_model(http_req *r, const char *name)
 /* rest is "/trees" or "/trees/{accel}/{builder}/boxes". */
 static void below_model(http_req *r, const char *name, const char *rest)
 {
-    arbor_model *m = arbor_store_acquire_model(r->srv->store, name);
-    if (m == NULL) {
-        http_reply_error(r, 404, "not_found", "no model named '%s'", name);
+    arbor_model *m = sync_model(r, name);
+    if (m == NULL)
         return;
-    }
     char accel[16], builder[16];
     if (r->route == ROUTE_TREES)
         route_tree_build(r, m);

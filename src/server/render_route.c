@@ -375,6 +375,8 @@ static cJSON *request_fields(http_req *r)
 bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_params *params,
                          arbor_model **model)
 {
+    if (!http_ready_for_frames(r))
+        return false;
     cJSON *fields = request_fields(r);
     if (fields == NULL)
         return false;
@@ -386,11 +388,8 @@ bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_
         http_reply_err(r, &err);
         return false;
     }
-    *model = arbor_store_acquire_model(r->srv->store, spec->model);
-    if (*model == NULL) {
-        http_reply_error(r, 404, "not_found", "no model named '%s'", spec->model);
+    if ((*model = sync_model(r, spec->model)) == NULL)
         return false;
-    }
     if (!render_spec_params(spec, arbor_model_mesh(*model), r->srv->config.max_pixels, params, &err)) {
         arbor_model_release(*model);
         http_reply_err(r, &err);

@@ -257,12 +257,33 @@ void arbor_server_loaded(arbor_server *s)
     pthread_mutex_unlock(&s->lock);
 }
 
+/* Ready: every model loaded and every prebuilt tree built. Lock held. */
+static bool ready_locked(const arbor_server *s)
+{
+    return s->loaded && s->npending == 0 && !s->stopping;
+}
+
+bool http_ready_for_frames(http_req *r)
+{
+    arbor_server *s = r->srv;
+    pthread_mutex_lock(&s->lock);
+    bool ready = ready_locked(s);
+    uint32_t pending = s->npending;
+    pthread_mutex_unlock(&s->lock);
+    if (!ready) {
+        http_reply_error(r, 503, "busy", "the daemon is %s (%u models or trees pending; /readyz says when it is ready)",
+                         atomic_load(&s->closing) ? "shutting down" : "loading", (unsigned)pending);
+        http_reply_header(r, "Retry-After", "1");
+    }
+    return ready;
+}
+
 static void route_readyz(http_req *r)
 {
     arbor_server *s = r->srv;
     cJSON *o = cJSON_CreateObject();
     pthread_mutex_lock(&s->lock);
-    bool ready = s->loaded && s->npending == 0 && !s->stopping;
+    bool ready = ready_locked(s);
     cJSON_AddStringToObject(o, "status", s->stopping ? "stopping" : ready ? "ready" : "loading");
     if (!s->stopping && !ready) {
         cJSON *p = cJSON_AddArrayToObject(o, "pending");
@@ -357,6 +378,8 @@ static void route_healthz(http_req *r)
 
 static void list_models(http_req *r)
 {
+    if (!sync_models(r))
+        return;
     arbor_model **models;
     uint32_t n = arbor_store_list_models(r->srv->store, &models);
     cJSON *o = cJSON_CreateObject(), *a = cJSON_AddArrayToObject(o, "models");
@@ -572,8 +595,15 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
         return MHD_YES;
     }
     if (r->suspended) {
-        /* Resumed: a worker has replied. */
+        /* Resumed: a worker has replied, or sync.c has loaded the model the
+         * route needs and it runs again. */
         r->suspended = false;
+        if (r->redispatch) {
+            r->redispatch = false;
+            dispatch(r, url);
+            if (r->suspended)
+                return MHD_YES;
+        }
         return queue_reply(r);
     }
     if (r->response == NULL) {

@@ -254,10 +254,8 @@ void route_stats(http_req *r)
     arbor_server *s = r->srv;
     const char *model = http_arg(r, "model"), *accel = http_arg(r, "accel"), *builder = http_arg(r, "builder");
     arbor_model *one = NULL;
-    if (model != NULL && (one = arbor_store_acquire_model(s->store, model)) == NULL) {
-        http_reply_error(r, 404, "not_found", "no model named '%s'", model);
+    if (model != NULL && (one = sync_model(r, model)) == NULL)
         return;
-    }
     if (accel != NULL || builder != NULL) {
         arbor_accel_kind k;
         arbor_builder b;

@@ -49,6 +49,7 @@ struct arbor_model {
     uint64_t version;
     uint64_t bytes;
     bool uploaded;        /* its file was written by the daemon */
+    atomic_uint_fast64_t stamp; /* the identity of the file it was read from, 0 when not known */
     arbor_mesh mesh;
     /* protected by store->lock */
     bool detached;        /* removed or replaced: no longer listed, no new builds */
@@ -188,6 +189,8 @@ const char *arbor_model_file(const arbor_model *m) { return m->file; }
 uint64_t arbor_model_version(const arbor_model *m) { return m->version; }
 uint64_t arbor_model_bytes(const arbor_model *m) { return m->bytes; }
 bool arbor_model_uploaded(const arbor_model *m) { return m->uploaded; }
+uint64_t arbor_model_stamp(const arbor_model *m) { return atomic_load(&((arbor_model *)m)->stamp); }
+void arbor_model_set_stamp(arbor_model *m, uint64_t stamp) { atomic_store(&m->stamp, stamp); }
 const arbor_mesh *arbor_model_mesh(const arbor_model *m) { return &m->mesh; }
 const arbor_accel *arbor_tree_accel(const arbor_tree *t) { return t->accel; }
 arbor_model *arbor_tree_model(const arbor_tree *t) { return t->model; }
@@ -372,6 +375,7 @@ static arbor_model *model_new(const char *name, const char *file, const arbor_me
     }
     m->store = s;
     atomic_init(&m->refs, 1);
+    atomic_init(&m->stamp, 0);
     snprintf(m->name, sizeof m->name, "%s", name);
     m->file = copy;
     m->bytes = arbor_mesh_bytes(mesh) + sizeof *m;

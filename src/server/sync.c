@@ -1,0 +1,276 @@
+/*
+ * sync.c - models in a folder that several daemons share (docs/SCALE.md).
+ *
+ * Every daemon of a cluster serves the same first --models folder, and an
+ * upload through any of them is written there atomically (models.c). The
+ * files are the truth, and a file's version is its identity
+ * (arbor_file_stamp: device, inode, size, modification time; a rename gives
+ * each upload a new inode). Before a route uses a model it asks sync_model,
+ * which compares the store's model with the folder:
+ *   - a model the store does not know, or whose file is not the one it was
+ *     read from, is loaded from the folder on the pool while the request is
+ *     suspended; the request is then dispatched again and finds it;
+ *   - a model whose file is gone (deleted through another daemon) is
+ *     unloaded and answered 404.
+ * However many requests wait for one name, it is loaded once.
+ *
+ * The checks are stat(2) calls on the polling thread (metadata only: no
+ * file is read there); reading and parsing happen on the pool.
+ */
+#include <dirent.h>
+#include <limits.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "arbor/load.h"
+#include "arbor/sys.h"
+#include "http.h"
+
+/* Loads one request may wait for: GET /api/models loads new models one per
+ * round, and a file rewritten while it loads costs another round. Past
+ * this the request takes the store as it is. */
+#define SYNC_ROUNDS_MAX 32
+
+typedef struct waiter {
+    http_req *r;
+    struct waiter *next;
+} waiter;
+
+struct sync_load {
+    arbor_server *srv;
+    char name[ARBOR_MODEL_NAME_MAX + 1];
+    char path[PATH_MAX];
+    uint64_t stamp;           /* of path, taken before reading it */
+    waiter *waiters;          /* protected by srv->lock */
+    struct sync_load *next;   /* srv->loads, protected by srv->lock */
+};
+
+typedef enum { SYNC_CURRENT, SYNC_LOAD, SYNC_GONE } sync_state;
+
+static const char *const model_exts[] = {".obj", ".ply", ".obj.gz", ".ply.gz"};
+#define NEXTS (sizeof model_exts / sizeof model_exts[0])
+
+/* The file of model `name` in the shared folder and its stamp, if any. */
+static bool folder_file(const arbor_server *s, const char *name, char *path, size_t cap, uint64_t *stamp)
+{
+    for (size_t i = 0; s->config.upload_dir != NULL && i < NEXTS; i++) {
+        snprintf(path, cap, "%s/%s%s", s->config.upload_dir, name, model_exts[i]);
+        if ((*stamp = arbor_file_stamp(path)) != 0)
+            return true;
+    }
+    return false;
+}
+
+bool sync_in_folder(const arbor_server *s, const char *name)
+{
+    char path[PATH_MAX];
+    uint64_t stamp;
+    return folder_file(s, name, path, sizeof path, &stamp);
+}
+
+/* What the folder says of `name`, whose model in the store is m (NULL:
+ * none). For SYNC_LOAD, path and *stamp are the file to read. The shared
+ * folder's file comes first; a model read from another --models folder is
+ * compared with its own file. */
+static sync_state compare(const arbor_server *s, const char *name, arbor_model *m, char *path, size_t cap,
+                          uint64_t *stamp)
+{
+    uint64_t known = m != NULL ? arbor_model_stamp(m) : 0;
+    if (m != NULL && known == 0)
+        return SYNC_CURRENT; /* not read from a file this daemon tracks */
+    if (folder_file(s, name, path, cap, stamp))
+        return known == *stamp ? SYNC_CURRENT : SYNC_LOAD;
+    if (m == NULL || (*stamp = arbor_file_stamp(arbor_model_file(m))) == 0)
+        return SYNC_GONE;
+    snprintf(path, cap, "%s", arbor_model_file(m));
+    return known == *stamp ? SYNC_CURRENT : SYNC_LOAD;
+}
+
+/* ---- loading, on a worker ---- */
+
+static void load_answer(sync_load *l, bool ok, const arbor_err *e)
+{
+    arbor_server *s = l->srv;
+    pthread_mutex_lock(&s->lock);
+    for (sync_load **p = &s->loads; *p != NULL; p = &(*p)->next)
+        if (*p == l) {
+            *p = l->next;
+            break;
+        }
+    waiter *w = l->waiters;
+    l->waiters = NULL;
+    pthread_mutex_unlock(&s->lock);
+    while (w != NULL) {
+        waiter *next = w->next;
+        if (ok)
+            w->r->redispatch = true;
+        else if (e->status == ARBOR_ERR_NOSPACE || e->status == ARBOR_ERR_NOMEM || e->status == ARBOR_ERR_CANCELLED)
+            http_reply_err(w->r, e);
+        else
+            http_reply_error(w->r, 500, "internal", "model '%s' cannot be loaded from %s: %s", l->name, l->path,
+                             e->msg);
+        http_resume(w->r);
+        free(w);
+        w = next;
+    }
+}
+
+static void load_run(void *ctx, uint32_t task)
+{
+    (void)task;
+    sync_load *l = ctx;
+    arbor_server *s = l->srv;
+    arbor_mesh mesh;
+    arbor_mesh_init(&mesh);
+    arbor_err err;
+    arbor_err_clear(&err);
+    uint64_t version = 0;
+    size_t cap = s->config.max_upload > ARBOR_LOAD_MAX_BYTES ? (size_t)s->config.max_upload : ARBOR_LOAD_MAX_BYTES;
+    /* It appeared in the shared folder after this daemon read it: an upload
+     * through another daemon, so deleting it removes the file, as there. */
+    bool ok = arbor_load_model_capped(l->path, cap, &mesh, &err) &&
+              arbor_store_add_model(s->store, l->name, l->path, &mesh, ARBOR_ADD_REPLACE | ARBOR_ADD_UPLOADED,
+                                    &version, &err);
+    arbor_mesh_free(&mesh);
+    arbor_model *m = ok ? arbor_store_acquire_model(s->store, l->name) : NULL;
+    if (m != NULL && arbor_model_version(m) == version)
+        arbor_model_set_stamp(m, l->stamp);
+    arbor_model_release(m);
+    load_answer(l, ok, &err);
+}
+
+static void load_free(void *ctx)
+{
+    free(ctx);
+}
+
+/* Suspends r until `name` is loaded from path (started here unless a load
+ * of that name is already on its way). */
+static void load_async(http_req *r, const char *name, const char *path, uint64_t stamp)
+{
+    arbor_server *s = r->srv;
+    waiter *w = malloc(sizeof *w);
+    sync_load *fresh = calloc(1, sizeof *fresh);
+    arbor_err e;
+    arbor_job *job = fresh != NULL ? arbor_job_new(1, load_run, NULL, load_free, fresh, &e) : NULL;
+    if (w == NULL || job == NULL) {
+        free(w);
+        if (job == NULL)
+            free(fresh);
+        arbor_job_release(job);
+        http_reply_error(r, 507, "insufficient_memory", "out of memory loading model '%s'", name);
+        return;
+    }
+    fresh->srv = s;
+    snprintf(fresh->name, sizeof fresh->name, "%s", name);
+    snprintf(fresh->path, sizeof fresh->path, "%s", path);
+    fresh->stamp = stamp;
+    r->sync_rounds++;
+    http_suspend(r);
+    w->r = r;
+    pthread_mutex_lock(&s->lock);
+    sync_load *l = s->loads;
+    while (l != NULL && strcmp(l->name, name) != 0)
+        l = l->next;
+    bool start = l == NULL;
+    if (start) {
+        l = fresh;
+        l->next = s->loads;
+        s->loads = l;
+    }
+    w->next = l->waiters;
+    l->waiters = w;
+    pthread_mutex_unlock(&s->lock);
+    if (start && !arbor_pool_submit(s->pool, job, &e)) {
+        arbor_err busy;
+        arbor_fail(&busy, ARBOR_ERR_CANCELLED, "the daemon is shutting down");
+        load_answer(l, false, &busy);
+    }
+    arbor_job_release(job); /* frees `fresh` when it was not needed */
+}
+
+/* ---- the lookups ---- */
+
+static void unload(arbor_server *s, arbor_model *m)
+{
+    arbor_err err;
+    /* Only the model that was checked: one added meanwhile (an upload here)
+     * has a file, and the next request sees it. */
+    arbor_model *now = arbor_store_acquire_model(s->store, arbor_model_name(m));
+    if (now == m)
+        arbor_store_remove_model(s->store, arbor_model_name(m), &err);
+    arbor_model_release(now);
+}
+
+/* Acts on compare's verdict for one name whose model in the store is m:
+ * SYNC_CURRENT (m is what the folder holds), SYNC_GONE (there is no such
+ * model now; m, if any, was unloaded) or SYNC_LOAD (r is suspended for the
+ * load, or answered when it could not start). */
+static sync_state settle(http_req *r, const char *name, arbor_model *m)
+{
+    char path[PATH_MAX];
+    uint64_t stamp = 0;
+    sync_state st = compare(r->srv, name, m, path, sizeof path, &stamp);
+    if (st == SYNC_LOAD && r->sync_rounds >= SYNC_ROUNDS_MAX)
+        st = m != NULL ? SYNC_CURRENT : SYNC_GONE; /* the folder keeps changing: take what is here */
+    if (st == SYNC_LOAD)
+        load_async(r, name, path, stamp);
+    else if (st == SYNC_GONE && m != NULL)
+        unload(r->srv, m);
+    return st;
+}
+
+arbor_model *sync_model(http_req *r, const char *name)
+{
+    arbor_model *m = arbor_store_acquire_model(r->srv->store, name);
+    sync_state st = settle(r, name, m);
+    if (st == SYNC_CURRENT && m != NULL)
+        return m;
+    arbor_model_release(m);
+    if (st != SYNC_LOAD)
+        http_reply_error(r, 404, "not_found", "no model named '%s'", name);
+    return NULL;
+}
+
+/* Whether a folder entry is a model file, and its model's name. */
+static bool entry_name(const char *file, char *name, size_t cap)
+{
+    size_t n = strlen(file);
+    for (size_t i = NEXTS; i-- > 0;) {
+        size_t k = strlen(model_exts[i]);
+        if (file[0] != '.' && n > k && n - k < cap && strcmp(file + n - k, model_exts[i]) == 0) {
+            memcpy(name, file, n - k);
+            name[n - k] = '\0';
+            return arbor_model_name_valid(name);
+        }
+    }
+    return false;
+}
+
+bool sync_models(http_req *r)
+{
+    arbor_server *s = r->srv;
+    arbor_model **models;
+    uint32_t n = arbor_store_list_models(s->store, &models);
+    bool current = true;
+    for (uint32_t i = 0; i < n; i++) {
+        current = current && settle(r, arbor_model_name(models[i]), models[i]) != SYNC_LOAD;
+        arbor_model_release(models[i]);
+    }
+    free(models);
+    DIR *d = current && s->config.upload_dir != NULL ? opendir(s->config.upload_dir) : NULL;
+    struct dirent *ent;
+    char name[ARBOR_MODEL_NAME_MAX + 1];
+    while (d != NULL && current && (ent = readdir(d)) != NULL) {
+        if (!entry_name(ent->d_name, name, sizeof name))
+            continue;
+        arbor_model *m = arbor_store_acquire_model(s->store, name);
+        if (m == NULL)
+            current = settle(r, name, NULL) != SYNC_LOAD;
+        arbor_model_release(m);
+    }
+    if (d != NULL)
+        closedir(d);
+    return current;
+}
