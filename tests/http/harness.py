@@ -241,6 +241,11 @@ def free_port(host="127.0.0.1"):
 
 ALL_DAEMONS = []
 
+# What ASan, LSan, UBSan and TSan print at a report (make test SAN=...), and
+# the reports found in stopped daemons' stderr, for run.py to fail the test.
+SANITIZER_REPORT = re.compile(r"(ERROR|WARNING): \w+Sanitizer|runtime error:")
+SANITIZER_REPORTS = []
+
 
 class Daemon:
     """arbord serve on a free port over a temp --models dir of symlinks.
@@ -250,7 +255,7 @@ class Daemon:
     """
 
     def __init__(self, models=(), args=(), bind="127.0.0.1", copy=False, wait_ready=True,
-                 models_dir=None, name="daemon", ready_timeout=120):
+                 models_dir=None, name="daemon", ready_timeout=120, default_web=False):
         self.tmp = tempfile.mkdtemp(prefix="arbor-http-")
         self.models_dir = models_dir or os.path.join(self.tmp, "models")
         os.makedirs(self.models_dir, exist_ok=True)
@@ -267,6 +272,10 @@ class Daemon:
         self.bind = bind
         self.host = bind if bind not in ("0.0.0.0",) else "127.0.0.1"
         self.args = list(args)
+        # the repository's web/ explicitly, so that only the test of the default depends on how
+        # the binary finds it (a build folder other than build/ may not find it)
+        if not default_web and "--web" not in self.args:
+            self.args += ["--web", os.path.join(REPO, "web")]
         self.name = name
         self.proc = None
         self.stderr_path = os.path.join(self.tmp, "stderr.log")
@@ -387,6 +396,12 @@ class Daemon:
             self.proc.kill()
             self.proc.wait()
         self._close()
+        # Every daemon's stderr is read for sanitizer reports before it goes,
+        # whether or not its test stopped it cleanly: run.py fails the test.
+        m = SANITIZER_REPORT.search(self.stderr())
+        if m:
+            err = self.stderr()
+            SANITIZER_REPORTS.append("%s: %s" % (self.name, err[max(0, m.start() - 200):][:2000]))
         shutil.rmtree(self.tmp, ignore_errors=True)
 
     # -- API shortcuts
@@ -621,6 +636,12 @@ def main_models():
 def main_daemon():
     """Default flags but --threads 2: most success paths and the plain failures."""
     return shared("main", lambda: Daemon(main_models(), ["--threads", "2"], name="main daemon"))
+
+
+def default_web_daemon():
+    """No --web: the repository's web/ found from the binary's place."""
+    return shared("default-web", lambda: Daemon([our("cornell.obj")], ["--threads", "1"], default_web=True,
+                                                name="default-web daemon"))
 
 
 def limits_daemon():

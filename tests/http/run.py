@@ -104,6 +104,8 @@ def main(argv):
             try:
                 func()
                 signal.alarm(0)
+                if harness.SANITIZER_REPORTS:
+                    raise Fail("sanitizer report: " + harness.SANITIZER_REPORTS.pop())
                 print("%s:%d:%s:PASS (%.1fs)" % (rel(filename), line, name, time.time() - t0), flush=True)
             except Ignore as e:
                 signal.alarm(0)
@@ -122,9 +124,17 @@ def main(argv):
                     msg = "%s: %s (at %s:%d)" % (type(e).__name__, e, rel(tb[-1].filename), tb[-1].lineno) \
                         if tb else "%s: %s" % (type(e).__name__, e)
                 print("%s:%d:%s:FAIL: %s" % (rel(f), ln, name, one_line(msg)), flush=True)
+            del harness.SANITIZER_REPORTS[:]
     finally:
         signal.alarm(0)
         harness.kill_all_daemons()
+    # Daemons still running at the end (none, when the lifecycle tests ran)
+    # count as one more test that fails on a sanitizer report.
+    if harness.SANITIZER_REPORTS:
+        print("tests/http/run.py:1:daemons_left_running:FAIL: sanitizer report: %s"
+              % one_line(harness.SANITIZER_REPORTS[0]), flush=True)
+        tests.append(None)
+        failures += 1
     print("(%.1f s)" % (time.time() - start_all))
     print("-----------------------")
     print("%d Tests %d Failures %d Ignored" % (len(tests), failures, ignored), flush=True)

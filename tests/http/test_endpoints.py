@@ -5,7 +5,7 @@ import os
 import re
 import time
 
-from harness import (Daemon, add_test, check, eq, expect_json, expect_ok, fail, ignore, main_daemon,
+from harness import (Daemon, add_test, default_web_daemon, check, eq, expect_json, expect_ok, fail, ignore, main_daemon,
                      need_shared, our, our_readme_counts, png_of, shared_readme_counts, test, run_cli,
                      metric_value, REPO, ARBORD)
 
@@ -456,7 +456,7 @@ def test_request_id_on_every_answer():
 @test
 def test_default_web_index():
     """Without --web, the repository's web/ answers / with its index.html."""
-    d = main_daemon()
+    d = default_web_daemon()
     r = d.get("/")
     expect_ok(r)
     check(r.header("Content-Type", "").startswith("text/html"), "GET / Content-Type %r" % r.header("Content-Type"))

@@ -6,7 +6,8 @@
 # daemon, RSS grown by more than 10% from the first run to the second, or an unclean exit.
 #
 # Env: ARBORD (build/arbord), LOAD_SECONDS (30), LOAD_THREADS (render workers: nproc),
-#      LOAD_QUEUE (16), LOAD_MODELS (dir, default the repo's models/), LOAD_WRK_THREADS (2).
+#      LOAD_QUEUE (16), LOAD_MODELS (dir, default the repo's models/), LOAD_WRK_THREADS (2),
+#      LOAD_BACKOFF_MS (0: a 503 is re-sent at once; N: wait N ms after a 503, see frames.lua).
 set -u
 cd "$(dirname "$0")/../.."
 ARBORD=${ARBORD:-build/arbord}
@@ -61,7 +62,7 @@ alive() {
 }
 
 echo "loadtest: $ARBORD serve --threads $THREADS --queue $QUEUE, models: $models"
-echo "loadtest: wrk -t$WRK_THREADS -c$CONNS -d${SECS}s, 256x256 frames, twice"
+echo "loadtest: wrk -t$WRK_THREADS -c$CONNS -d${SECS}s, 256x256 frames, twice (backoff after 503: ${LOAD_BACKOFF_MS:-0} ms)"
 fail=0
 rss0=$(rss)
 echo "RSS before:  ${rss0} kB"
