@@ -1,5 +1,7 @@
 /*
- * png.h - encoding RGB8 images as PNG (libpng), to a file or to memory.
+ * png.h - encoding RGB8 images as PNG (libpng), to a file or to memory, and
+ * decoding them back (the frames a daemon answers, for the client that
+ * assembles regions into one image).
  *
  * Tuned for frames that are encoded once and sent at once: zlib level 1 and
  * the single UP filter (on rendered frames about as small as level 2-3 with
@@ -27,5 +29,11 @@
  * regular file (/dev/stdout, a FIFO) is written in place and never removed. */
 bool arbor_png_write_file(const char *path, const uint8_t *rgb, int width, int height, arbor_err *e);
 bool arbor_png_encode(const uint8_t *rgb, int width, int height, uint8_t **out, size_t *out_len, arbor_err *e);
+/* Decodes a PNG held in memory into RGB8 (*rgb malloc'd, width * height * 3
+ * bytes; gray, palette, alpha and 16-bit images are converted, alpha
+ * dropped). Images wider or taller than max_side are refused before any
+ * pixel memory is allocated. */
+bool arbor_png_decode(const uint8_t *data, size_t len, int max_side, uint8_t **rgb, int *width, int *height,
+                      arbor_err *e);
 
 #endif

@@ -1,6 +1,6 @@
 /*
  * png.c - RGB8 images to PNG with libpng, to a FILE or a growing memory
- * buffer (see include/arbor/png.h).
+ * buffer, and PNG in memory back to RGB8 (see include/arbor/png.h).
  *
  * libpng reports errors by calling an error handler that must not return;
  * ours copies the message into the encoder's arbor_err and longjmps back to
@@ -205,5 +205,38 @@ bool arbor_png_encode(const uint8_t *rgb, int width, int height, uint8_t **out, 
     }
     *out = sink.data;
     *out_len = sink.len;
+    return true;
+}
+
+/* Decoding goes through libpng's simplified API, which converts every
+ * colour type and depth to the one format asked for and reports errors in
+ * the image's message rather than by longjmp. */
+bool arbor_png_decode(const uint8_t *data, size_t len, int max_side, uint8_t **rgb, int *width, int *height,
+                      arbor_err *e)
+{
+    png_image img;
+    memset(&img, 0, sizeof img);
+    img.version = PNG_IMAGE_VERSION;
+    if (!png_image_begin_read_from_memory(&img, data, len))
+        return arbor_fail(e, ARBOR_ERR_PARSE, "png: %s", img.message);
+    if (img.width < 1 || img.height < 1 || img.width > (png_uint_32)max_side || img.height > (png_uint_32)max_side) {
+        png_image_free(&img);
+        return arbor_fail(e, ARBOR_ERR_PARSE, "png: a %ux%u image is over the limit of %d pixels a side",
+                          (unsigned)img.width, (unsigned)img.height, max_side);
+    }
+    img.format = PNG_FORMAT_RGB;
+    uint8_t *out = malloc(PNG_IMAGE_SIZE(img));
+    if (out == NULL) {
+        png_image_free(&img);
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "png: out of memory for a %ux%u image", (unsigned)img.width,
+                          (unsigned)img.height);
+    }
+    if (!png_image_finish_read(&img, NULL, out, 0, NULL)) {
+        free(out);
+        return arbor_fail(e, ARBOR_ERR_PARSE, "png: %s", img.message);
+    }
+    *rgb = out;
+    *width = (int)img.width;
+    *height = (int)img.height;
     return true;
 }

@@ -4,7 +4,8 @@
  * arbor_err; a file is replaced whole or not at all (what was there before
  * survives a failed write, nothing but the image is left behind), keeping
  * its permissions and symbolic links, and devices are written in place,
- * never removed.
+ * never removed. arbor_png_decode gives back exactly the pixels encoded,
+ * and refuses what is not a PNG or is larger than asked.
  */
 #include <dirent.h>
 #include <png.h>
@@ -246,10 +247,34 @@ static void test_replacing_keeps_permissions_and_links(void)
     remove_scratch(names, 4);
 }
 
+static void test_decode_round_trips_and_refuses(void)
+{
+    const int w = 61, h = 17;
+    uint8_t *rgb = test_card(w, h), *png = NULL, *back = NULL;
+    size_t len = 0;
+    int bw = 0, bh = 0;
+    arbor_err e;
+    TEST_ASSERT_TRUE(arbor_png_encode(rgb, w, h, &png, &len, &e));
+    TEST_ASSERT_TRUE_MESSAGE(arbor_png_decode(png, len, 8192, &back, &bw, &bh, &e), e.msg);
+    TEST_ASSERT_EQUAL_INT(w, bw);
+    TEST_ASSERT_EQUAL_INT(h, bh);
+    TEST_ASSERT_EQUAL_MEMORY(rgb, back, (size_t)w * h * 3);
+    free(back);
+    back = NULL;
+    TEST_ASSERT_FALSE(arbor_png_decode(png, len, 60, &back, &bw, &bh, &e));
+    TEST_ASSERT_NOT_NULL(strstr(e.msg, "61x17"));
+    TEST_ASSERT_FALSE(arbor_png_decode(png, len / 2, 8192, &back, &bw, &bh, &e));
+    TEST_ASSERT_FALSE(arbor_png_decode((const uint8_t *)"not a png at all", 16, 8192, &back, &bw, &bh, &e));
+    TEST_ASSERT_NULL(back);
+    free(png);
+    free(rgb);
+}
+
 int main(void)
 {
     UNITY_BEGIN();
     RUN_TEST(test_memory_round_trip);
+    RUN_TEST(test_decode_round_trips_and_refuses);
     RUN_TEST(test_file_round_trip_and_one_pixel);
     RUN_TEST(test_errors_are_reported_not_printed);
     RUN_TEST(test_a_failed_write_leaves_what_was_there);
