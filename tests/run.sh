@@ -9,11 +9,18 @@ set -u
 passed=0
 failed=0
 skipped=0
+# A suite's runner is named by its folder (tests/http/run.py is http), a Unity binary by itself.
+name_of() {
+    case "$1" in
+        */run.*) basename "$(dirname "$1")" ;;
+        *) basename "$1" ;;
+    esac
+}
 for bin in "$@"; do
     log=$(mktemp)
     start=$(date +%s)
     # Say what is running: some suites take minutes and silence looks like a hang.
-    echo "run  $(basename "$bin") ..."
+    echo "run  $(name_of "$bin") ..."
     "$bin" >"$log" 2>&1
     rc=$?
     secs=$(( $(date +%s) - start ))
@@ -32,11 +39,11 @@ for bin in "$@"; do
     failed=$((failed + f))
     skipped=$((skipped + k))
     if [ "$f" -ne 0 ]; then
-        echo "FAIL $(basename "$bin") (exit $rc, ${secs}s):"
+        echo "FAIL $(name_of "$bin") (exit $rc, ${secs}s):"
         grep -E ':FAIL|Segmentation|Assert|error|rror:|^not ok' "$log" | head -n 40
         [ -z "$summary" ] && tail -n 20 "$log"
     else
-        echo "ok   $(basename "$bin"): $n tests, $k skipped (${secs}s)"
+        echo "ok   $(name_of "$bin"): $n tests, $k skipped (${secs}s)"
     fi
     if [ "$k" -ne 0 ]; then
         grep -E ':IGNORE|SKIP|skipped' "$log" | head -n 10

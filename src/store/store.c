@@ -586,6 +586,11 @@ static void build_run(void *ctx, uint32_t task)
         arbor_tree_release(t);
     if (on_build != NULL)
         on_build(on_build_user, b->kind, b->builder, st.build_ms, filed);
+    /* The build's hold on the model ends before anyone hears of the tree, so
+     * that a waiter that lets go of the tree and replaces the model finds it
+     * held by the store alone. */
+    arbor_model_release(b->model);
+    b->model = NULL;
     while (w != NULL) {
         waiter *next = w->next;
         w->fn(w->user, filed ? t : NULL, filed ? NULL : &err);
