@@ -205,3 +205,15 @@ def test_frame_timeout_503():
         d.stop_clean()
     finally:
         d.cleanup()
+
+
+@test
+def test_stream_keys_are_independent():
+    """Frames of different stream keys (and none) do not cancel each other."""
+    d = stream_daemon()
+    res = parallel(4, lambda i: d.post("/api/render", dict(BIG, width=384, height=384, seed=i + 1,
+                                                           **({"stream": "key-%d" % i} if i < 3 else {})),
+                                       timeout=120))
+    for i, r in enumerate(res):
+        check(not isinstance(r, Exception), "frame %d: %r" % (i, r))
+        eq(r.status, 200, "frame %d (stream key-%d): %s" % (i, i, r.short()))

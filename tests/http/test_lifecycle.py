@@ -238,6 +238,65 @@ def test_access_log_text():
         d.cleanup()
 
 
+
+def _sigterm_exits_fast(d, what, limit=5.0):
+    t0 = time.time()
+    d.proc.send_signal(signal.SIGTERM)
+    try:
+        rc = d.proc.wait(60)
+    except subprocess.TimeoutExpired:
+        rc = None
+    took = time.time() - t0
+    err = d.stderr()
+    check(rc == 0, "SIGTERM %s: exit %s, expected 0; stderr: %s" % (what, rc, err[-1200:]))
+    check("Sanitizer" not in err, "sanitizer report: %s" % err[-2000:])
+    check(took < limit, "SIGTERM %s: exit took %.1f s (builds and jobs should be cancelled, not awaited)"
+          % (what, took))
+
+
+@test
+def test_sigterm_during_tree_build_exits_fast():
+    """A long build (k-d spatial of a big model) is cancelled at shutdown, not waited for."""
+    big = os.path.join(harness.SHARED, "dragon.obj.gz")
+    if not os.path.exists(big):
+        big = os.path.join(harness.SHARED, "bunny.obj")
+    if not os.path.exists(big):
+        harness.ignore("needs dragon.obj.gz or bunny.obj in %s" % harness.SHARED)
+    name = os.path.basename(big).split(".")[0]
+    d = Daemon([big], ["--threads", "2", "--prebuild", "none"], name="build-cancel daemon")
+    try:
+        r = d.post("/api/models/%s/trees" % name, {"accel": "kd", "builder": "spatial", "wait": False})
+        eq(r.status, 202, "POST trees wait:false: %s" % r.short())
+        t0 = time.time()
+        while d.tree(name, "kd", "spatial")["state"] != "building":
+            check(time.time() - t0 < 10, "kd:spatial never building: %r" % d.tree(name, "kd", "spatial"))
+            time.sleep(0.01)
+        time.sleep(0.3)
+        if d.tree(name, "kd", "spatial")["state"] != "building":
+            harness.ignore("kd:spatial of %s built in under 0.3 s: nothing to cancel" % name)
+        _sigterm_exits_fast(d, "during a kd:spatial build of %s" % name)
+    finally:
+        d.cleanup()
+
+
+@test
+def test_sigterm_during_bench_job_exits_fast():
+    d = Daemon([our("menger.obj")], ["--threads", "2", "--prebuild", "none"], name="bench-cancel daemon")
+    try:
+        r = d.post("/api/bench", {"model": "menger", "accel": ["bvh", "kd"],
+                                  "builder": ["spatial", "median", "mean", "sah"], "runs": 20})
+        eq(r.status, 202, "POST /api/bench: %s" % r.short())
+        jid = r.json()["id"]
+        t0 = time.time()
+        while expect_json(d.get("/api/jobs/%s" % jid))["state"] != "running":
+            check(time.time() - t0 < 10, "the bench job never ran")
+            time.sleep(0.02)
+        time.sleep(0.5)
+        _sigterm_exits_fast(d, "during a bench job")
+    finally:
+        d.cleanup()
+
+
 @test
 def test_shared_daemons_exit_cleanly():
     """Every daemon the other tests shared: SIGTERM -> exit 0, no sanitizer report."""

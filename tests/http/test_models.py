@@ -218,6 +218,7 @@ def _while_rendering(d, name, action):
 @test
 def test_delete_while_frames_render():
     d = upload_daemon()
+    mem0 = expect_json(d.get("/api/stats"))["daemon"]["memory"]
     with open(our("menger.obj"), "rb") as f:
         expect_json(put(d, "heavy-del", f.read()), 201)
     r, dl = _while_rendering(d, "heavy-del", lambda: d.req("DELETE", "/api/models/heavy-del"))
@@ -231,6 +232,10 @@ def test_delete_while_frames_render():
     expect_error(d.post("/api/render", {"model": "heavy-del", "width": 8, "height": 8}), 404, "not_found")
     expect_ok(d.get("/healthz"))
     expect_ok(d.post("/api/render", {"model": "cornell", "width": 8, "height": 8}))
+    # the memory returns once the last frame is done
+    mem = expect_json(d.get("/api/stats"))["daemon"]["memory"]
+    eq((mem["models"], mem["trees"]), (mem0["models"], mem0["trees"]),
+       "daemon.memory models, trees after the deleted model's frame finished (before the upload: %r)" % mem0)
 
 
 @test
