@@ -15,6 +15,14 @@ int cmd_stats(int argc, char **argv);
 int cmd_bench(int argc, char **argv);
 int cmd_gen(int argc, char **argv);
 
+/* remote_render.c: the frame `request` describes (a render request's
+ * fields, less region), rendered by the daemon or load balancer at url as
+ * nregions horizontal strips asked for over nconn keep-alive connections at
+ * once, assembled and written to out as PNG. Prints a summary; returns the
+ * exit code. */
+int remote_render(const char *url, const cJSON *request, int width, int height, int nregions, int nconn,
+                  const char *out);
+
 /* argv[*i] is an option that takes a value: returns argv[*i + 1] and advances
  * *i, or prints "arbord CMD: OPT needs a value" and returns NULL. */
 const char *cli_value(const char *cmd, int argc, char **argv, int *i);

@@ -1,6 +1,8 @@
 /*
  * cmd_render.c - arbord render: load a model, build one tree, render one
- * frame on the worker pool and write it as a PNG, printing the timings.
+ * frame on the worker pool and write it as a PNG, printing the timings; or,
+ * with --url, have daemons render it, in --split regions at once
+ * (remote_render.c).
  */
 #include <stdio.h>
 #include <string.h>
@@ -17,6 +19,7 @@ static void usage(FILE *out)
 {
     fprintf(out,
             "usage: arbord render --model FILE -o OUT.png [options]\n"
+            "       arbord render --url http://HOST:PORT --model NAME [--split K] -o OUT.png [options]\n"
             "  --accel bvh|kd          tree kind (default bvh)\n"
             "  --builder NAME          spatial, median, mean, sah (default sah)\n"
             "  --width W --height H    image size, 1..%d (default 1024 x 768)\n"
@@ -28,26 +31,33 @@ static void usage(FILE *out)
             "  --ao-samples N          rays per AO sample, 1..%d (default 8)\n"
             "  --seed N                frame seed for the sample positions (default 1)\n"
             "  --threads N             render and build threads; 0 = one per core (default 0)\n"
+            "  --heat-scale S          heat mode: the cost at the top of the colour scale (default: the\n"
+            "                          frame's 99th percentile)\n"
             "  --counts                also report node steps and triangle tests per primary ray\n"
+            "  --url URL               render on the daemon (or load balancer) at URL; --model names a\n"
+            "                          model it serves\n"
+            "  --split K               with --url: ask for K horizontal strips at once (default 1)\n"
+            "  --connections N         with --url: keep-alive connections at once (default K)\n"
             "Without --yaw/--pitch/--distance the camera is PROTOCOL.md's view.\n",
             ARBOR_MAX_IMAGE_SIZE, ARBOR_MAX_SPP, ARBOR_MAX_BOUNCES, ARBOR_MAX_AO_SAMPLES);
 }
 
 typedef struct {
-    const char *model, *output;
+    const char *model, *output, *url;
     arbor_accel_kind kind;
     arbor_builder builder;
     arbor_render_mode mode;
-    int width, height, spp, bounces, ao_samples, threads, seed;
-    bool orbit, counts;
-    float yaw, pitch, distance;
+    int width, height, spp, bounces, ao_samples, threads, seed, split, connections;
+    bool orbit, counts, threads_given;
+    float yaw, pitch, distance, heat_scale;
 } render_args;
 
 static bool takes_value(const char *opt)
 {
     static const char *const names[] = {"--model", "-o", "--output", "--accel", "--builder", "--mode", "--width",
                                         "--height", "--spp", "--bounces", "--ao-samples", "--threads", "--seed",
-                                        "--yaw", "--pitch", "--distance"};
+                                        "--url", "--split", "--connections", "--heat-scale", "--yaw", "--pitch",
+                                        "--distance"};
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
         if (strcmp(opt, names[i]) == 0)
             return true;
@@ -60,6 +70,27 @@ static bool has_png_extension(const char *path)
 {
     size_t n = strlen(path);
     return n >= 4 && strcasecmp(path + n - 4, ".png") == 0;
+}
+
+/* The flags that belong to one side only: the local renderer's threads and
+ * counts, the remote one's strips. Returns -1 to go on, else 2. */
+static int check_remote_args(const render_args *a)
+{
+    const char *bad = a->url != NULL ? (a->threads_given ? "--threads" : a->counts ? "--counts" : NULL)
+                                     : (a->split > 1 ? "--split" : a->connections > 0 ? "--connections" : NULL);
+    if (bad != NULL) {
+        fprintf(stderr, "arbord render: %s %s\n", bad,
+                a->url != NULL ? "is the local renderer's: the daemons have their own" : "needs --url");
+        return 2;
+    }
+    /* Heat colours scale to the frame's 99th percentile, which no strip
+     * knows on its own: every strip must be given the same scale. */
+    if (a->split > 1 && a->mode == ARBOR_MODE_HEAT && a->heat_scale <= 0.0f) {
+        fprintf(stderr, "arbord render: heat mode in %d strips needs --heat-scale S (the whole frame's scale: "
+                        "render it once whole and read its X-Heat-Scale or 'heat scale')\n", a->split);
+        return 2;
+    }
+    return -1;
 }
 
 /* Parses argv into a; returns -1 to go on, else the exit code. */
@@ -108,7 +139,15 @@ static int parse_args(int argc, char **argv, render_args *a)
         } else if (strcmp(opt, "--ao-samples") == 0) {
             ok = cli_int(cmd, opt, v, 1, ARBOR_MAX_AO_SAMPLES, &a->ao_samples);
         } else if (strcmp(opt, "--threads") == 0) {
-            ok = cli_int(cmd, opt, v, 0, 1024, &a->threads);
+            ok = a->threads_given = cli_int(cmd, opt, v, 0, 1024, &a->threads);
+        } else if (strcmp(opt, "--url") == 0) {
+            ok = cli_once(cmd, opt, &a->url, v);
+        } else if (strcmp(opt, "--split") == 0) {
+            ok = cli_int(cmd, opt, v, 1, ARBOR_MAX_IMAGE_SIZE, &a->split);
+        } else if (strcmp(opt, "--connections") == 0) {
+            ok = cli_int(cmd, opt, v, 1, 256, &a->connections);
+        } else if (strcmp(opt, "--heat-scale") == 0) {
+            ok = cli_float(cmd, opt, v, 1e-6, 1e9, &a->heat_scale);
         } else if (strcmp(opt, "--seed") == 0) {
             ok = cli_int(cmd, opt, v, 0, 2147483647, &a->seed);
         } else if (strcmp(opt, "--yaw") == 0) {
@@ -131,7 +170,7 @@ static int parse_args(int argc, char **argv, render_args *a)
                 a->output);
         return 2;
     }
-    return -1;
+    return check_remote_args(a);
 }
 
 static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_accel *tree, arbor_pool *pool)
@@ -147,6 +186,7 @@ static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_acce
     params.ao_samples = a->ao_samples;
     params.seed = (uint64_t)a->seed;
     params.count_primary = a->counts;
+    params.heat_scale = a->heat_scale;
     arbor_frame *frame = arbor_render(pool, tree, &params, &err);
     int status = 0;
     if (frame == NULL) {
@@ -174,14 +214,55 @@ static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_acce
     return status;
 }
 
+/* The render request (docs/API.md) for the frame a asks for; fields left
+ * out take the daemon's defaults, which are the renderer's. */
+static cJSON *request_of(const render_args *a)
+{
+    cJSON *o = cJSON_CreateObject(), *cam = NULL;
+    bool ok = o != NULL && cJSON_AddStringToObject(o, "model", a->model) &&
+              cJSON_AddStringToObject(o, "accel", arbor_accel_kind_name(a->kind)) &&
+              cJSON_AddStringToObject(o, "builder", arbor_builder_name(a->builder)) &&
+              cJSON_AddStringToObject(o, "mode", arbor_render_mode_name(a->mode)) &&
+              cJSON_AddNumberToObject(o, "width", a->width) && cJSON_AddNumberToObject(o, "height", a->height) &&
+              cJSON_AddNumberToObject(o, "spp", a->spp) && cJSON_AddNumberToObject(o, "max_bounces", a->bounces) &&
+              cJSON_AddNumberToObject(o, "ao_samples", a->ao_samples) && cJSON_AddNumberToObject(o, "seed", a->seed);
+    if (ok && a->heat_scale > 0.0f)
+        ok = cJSON_AddNumberToObject(o, "heat_scale", a->heat_scale) != NULL;
+    if (ok && a->orbit)
+        ok = (cam = cJSON_AddObjectToObject(o, "camera")) != NULL && cJSON_AddNumberToObject(cam, "yaw", a->yaw) &&
+             cJSON_AddNumberToObject(cam, "pitch", a->pitch) &&
+             cJSON_AddNumberToObject(cam, "distance", a->distance) && cJSON_AddNumberToObject(cam, "fov", 45);
+    if (!ok) {
+        cJSON_Delete(o);
+        return NULL;
+    }
+    return o;
+}
+
+static int render_via(const render_args *a)
+{
+    cJSON *request = request_of(a);
+    if (request == NULL) {
+        fprintf(stderr, "arbord render: out of memory\n");
+        return 1;
+    }
+    int split = a->split > 0 ? a->split : 1;
+    int status = remote_render(a->url, request, a->width, a->height, split, a->connections > 0 ? a->connections : split,
+                               a->output);
+    cJSON_Delete(request);
+    return status;
+}
+
 int cmd_render(int argc, char **argv)
 {
-    render_args a = {NULL, NULL, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH, ARBOR_MODE_SHADED, 1024, 768, 1, 4, 8, 0, 1,
-                     false, false, 0.0f, 0.0f, 0.0f};
+    render_args a = {.kind = ARBOR_ACCEL_BVH, .builder = ARBOR_BUILD_SAH, .mode = ARBOR_MODE_SHADED, .width = 1024,
+                     .height = 768, .spp = 1, .bounces = 4, .ao_samples = 8, .seed = 1};
     arbor_camera_orbit_protocol(&a.yaw, &a.pitch, &a.distance);
     int code = parse_args(argc, argv, &a);
     if (code >= 0)
         return code;
+    if (a.url != NULL)
+        return render_via(&a);
 
     arbor_mesh mesh;
     arbor_err err;
