@@ -34,12 +34,22 @@ typedef struct {
     int illum;      /* MTL illumination model; 3 and 5 are mirrors */
 } arbor_material;
 
+/* A triangle corner without a vertex normal (tri_normals). */
+#define ARBOR_NO_NORMAL UINT32_MAX
+
 typedef struct {
     uint32_t nverts, ntris, nmats;
     arbor_vec3 *verts;     /* nverts positions */
     uint32_t *tri_verts;   /* 3 * ntris vertex indices */
     uint32_t *tri_mat;     /* ntris material indices into mats */
     arbor_material *mats;  /* nmats materials; mats[0] is the default */
+    /* Vertex normals for smooth shading (OBJ vn), or none: normals holds
+     * nnormals vectors as read; tri_normals, 3 * ntris indices into them
+     * (ARBOR_NO_NORMAL for a corner without one), is NULL when no face
+     * names a normal. */
+    arbor_vec3 *normals;
+    uint32_t *tri_normals;
+    uint32_t nnormals, cap_normals;
     arbor_aabb bounds;     /* of the vertices triangles use */
     char **warnings;       /* nwarnings owned strings */
     uint32_t nwarnings;
@@ -54,6 +64,10 @@ void arbor_mesh_free(arbor_mesh *m);
 /* Growing the mesh. Each returns false (and fills e) only when memory runs out. */
 bool arbor_mesh_add_vert(arbor_mesh *m, arbor_vec3 p, arbor_err *e);
 bool arbor_mesh_add_tri(arbor_mesh *m, uint32_t a, uint32_t b, uint32_t c, uint32_t mat, arbor_err *e);
+bool arbor_mesh_add_normal(arbor_mesh *m, arbor_vec3 n, arbor_err *e);
+/* Gives the last triangle added the normals a, b, c of its corners (indices
+ * into normals, or ARBOR_NO_NORMAL). */
+bool arbor_mesh_set_last_tri_normals(arbor_mesh *m, uint32_t a, uint32_t b, uint32_t c, arbor_err *e);
 /* Appends a material with the default values and the given name; *index gets its index. */
 bool arbor_mesh_add_material(arbor_mesh *m, const char *name, uint32_t *index, arbor_err *e);
 /* Index of the material called name, or -1. */
@@ -83,5 +97,10 @@ arbor_aabb arbor_mesh_tri_bounds(const arbor_mesh *m, uint32_t t);
 
 /* Unnormalised geometric normal (b - a) x (c - a). */
 arbor_vec3 arbor_mesh_tri_normal(const arbor_mesh *m, uint32_t t);
+
+/* The unit normal to shade triangle t with at barycentrics (u, v) of its
+ * corners b and c: its vertex normals interpolated when all three corners
+ * have one (and they do not cancel out), else `geometric` (a unit vector). */
+arbor_vec3 arbor_mesh_shading_normal(const arbor_mesh *m, uint32_t t, float u, float v, arbor_vec3 geometric);
 
 #endif

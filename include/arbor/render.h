@@ -15,7 +15,10 @@
  *            shadows, 15% ambient so shadows are not black, no falloff;
  *            mirror materials (arbor_material_is_mirror) reflect, tinted by
  *            Ks (0.9 when Ks is black), up to max_bounces; gamma 2.2.
- *   normals  the geometric normal turned toward the viewer, as n*0.5+0.5.
+ *   normals  the shading normal turned toward the viewer, as n*0.5+0.5.
+ * The shading normal is the geometric one, or, on models that carry vertex
+ * normals (OBJ vn), those interpolated across the triangle (smooth
+ * shading); shadow and secondary rays always leave along the geometric one.
  *   depth    hit distance as grey: white at the nearest point of the
  *            model's bounding box, black at its farthest corner.
  *   ao       ambient occlusion: the fraction of ao_samples cosine-weighted

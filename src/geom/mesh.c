@@ -20,6 +20,8 @@ void arbor_mesh_free(arbor_mesh *m)
     free(m->verts);
     free(m->tri_verts);
     free(m->tri_mat);
+    free(m->normals);
+    free(m->tri_normals);
     free(m->mats);
     for (uint32_t i = 0; i < m->nwarnings; i++)
         free(m->warnings[i]);
@@ -62,13 +64,49 @@ bool arbor_mesh_add_tri(arbor_mesh *m, uint32_t a, uint32_t b, uint32_t c, uint3
         if (tv == NULL)
             return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory growing mesh to %u triangles", cap);
         m->tri_verts = tv;
-        m->cap_tris = cap;
     }
+    if (m->tri_normals != NULL && cap != m->cap_tris) {
+        uint32_t *tn = realloc(m->tri_normals, (size_t)cap * 3 * sizeof *tn);
+        if (tn == NULL)
+            return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory growing mesh to %u triangles", cap);
+        m->tri_normals = tn;
+    }
+    m->cap_tris = cap > m->cap_tris ? cap : m->cap_tris;
     uint32_t *t = m->tri_verts + 3 * (size_t)m->ntris;
     t[0] = a;
     t[1] = b;
     t[2] = c;
+    if (m->tri_normals != NULL)
+        for (int k = 0; k < 3; k++)
+            m->tri_normals[3 * (size_t)m->ntris + (size_t)k] = ARBOR_NO_NORMAL;
     m->tri_mat[m->ntris++] = mat;
+    return true;
+}
+
+bool arbor_mesh_add_normal(arbor_mesh *m, arbor_vec3 n, arbor_err *e)
+{
+    if (!grow((void **)&m->normals, &m->cap_normals, m->nnormals, sizeof *m->normals, e))
+        return false;
+    m->normals[m->nnormals++] = n;
+    return true;
+}
+
+bool arbor_mesh_set_last_tri_normals(arbor_mesh *m, uint32_t a, uint32_t b, uint32_t c, arbor_err *e)
+{
+    if (m->ntris == 0)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "no triangle to give normals to");
+    /* Made at the first triangle with normals, the corners before it have none. */
+    if (m->tri_normals == NULL) {
+        m->tri_normals = malloc((size_t)m->cap_tris * 3 * sizeof *m->tri_normals);
+        if (m->tri_normals == NULL)
+            return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for %u triangles' normals", m->cap_tris);
+        for (size_t i = 0; i < 3 * (size_t)m->ntris; i++)
+            m->tri_normals[i] = ARBOR_NO_NORMAL;
+    }
+    uint32_t *t = m->tri_normals + 3 * (size_t)(m->ntris - 1);
+    t[0] = a;
+    t[1] = b;
+    t[2] = c;
     return true;
 }
 
@@ -137,6 +175,12 @@ bool arbor_mesh_finish(arbor_mesh *m, arbor_err *e)
         if (m->tri_mat[t] >= m->nmats)
             return arbor_fail(e, ARBOR_ERR_INVALID, "triangle %u: material %u out of range (%u materials)",
                               t, m->tri_mat[t], m->nmats);
+        for (int k = 0; m->tri_normals != NULL && k < 3; k++) {
+            uint32_t n = m->tri_normals[3 * (size_t)t + (size_t)k];
+            if (n != ARBOR_NO_NORMAL && n >= m->nnormals)
+                return arbor_fail(e, ARBOR_ERR_INVALID, "triangle %u: normal index %u out of range (%u normals)", t,
+                                  n, m->nnormals);
+        }
     }
     m->bounds = b;
     return true;
@@ -155,4 +199,18 @@ arbor_vec3 arbor_mesh_tri_normal(const arbor_mesh *m, uint32_t t)
     arbor_vec3 a, b, c;
     arbor_mesh_tri(m, t, &a, &b, &c);
     return vec3_cross(vec3_sub(b, a), vec3_sub(c, a));
+}
+
+arbor_vec3 arbor_mesh_shading_normal(const arbor_mesh *m, uint32_t t, float u, float v, arbor_vec3 geometric)
+{
+    if (m->tri_normals == NULL)
+        return geometric;
+    const uint32_t *i = m->tri_normals + 3 * (size_t)t;
+    if (i[0] == ARBOR_NO_NORMAL || i[1] == ARBOR_NO_NORMAL || i[2] == ARBOR_NO_NORMAL)
+        return geometric;
+    arbor_vec3 n = vec3_add(vec3_scale(m->normals[i[0]], 1.0f - u - v),
+                            vec3_add(vec3_scale(m->normals[i[1]], u), vec3_scale(m->normals[i[2]], v)));
+    float len = vec3_length(n);
+    /* zero, or not a number, when the file's normals are */
+    return len > 1e-20f ? vec3_scale(n, 1.0f / len) : geometric;
 }

@@ -3,8 +3,8 @@
  * include/arbor/load.h).
  *
  * One pass over the buffer with a cursor, no allocation per line. Read: v
- * (x y z; w or vertex colours after them ignored), vn (validated, counted),
- * vt (counted), f in every index form (a, a/b, a/b/c, a//c; negative = from
+ * (x y z; w or vertex colours after them ignored), vn (kept for smooth
+ * shading), vt (counted), f in every index form (a, a/b, a/b/c, a//c; negative = from
  * the end of the list so far), usemtl, mtllib. o, g, s and every other
  * statement are skipped.
  */
@@ -32,7 +32,7 @@ typedef struct {
     char *real_dir;  /* its real path once resolved (malloc'd), for containment */
     arbor_mesh *m;
     material_table mats;
-    uint32_t ntexcoords, nnormals;
+    uint32_t ntexcoords;
     uint32_t mat; /* material of the faces that follow */
     obj_library libs[OBJ_MAX_LIBRARIES];
     uint32_t nlibs;
@@ -92,9 +92,10 @@ static bool resolve_index(obj_reader *r, const obj_index *idx, uint32_t count, c
                      (size_t)shown < idx->ndigits ? "..." : "", count, plural);
 }
 
-/* Reads one face vertex; only the position index is kept, the others are
- * checked against the vt and vn lines seen so far. */
-static bool read_face_vertex(obj_reader *r, uint32_t *vert, arbor_err *e)
+/* Reads one face vertex: its position and normal indices (ARBOR_NO_NORMAL
+ * when it names none); the texture index is checked against the vt lines
+ * seen so far. */
+static bool read_face_vertex(obj_reader *r, uint32_t *vert, uint32_t *normal, arbor_err *e)
 {
     obj_index idx[3];
     const char *end = split_face_vertex(&r->c, r->c.p, idx);
@@ -104,10 +105,11 @@ static bool read_face_vertex(obj_reader *r, uint32_t *vert, arbor_err *e)
         return text_fail(&r->c, e, "malformed face vertex '%s'", word);
     }
     uint32_t unused;
+    *normal = ARBOR_NO_NORMAL;
     if (!resolve_index(r, &idx[0], r->m->nverts, "vertex", "vertices", vert, e)
         || (idx[1].present
             && !resolve_index(r, &idx[1], r->ntexcoords, "texture coordinate", "texture coordinates", &unused, e))
-        || (idx[2].present && !resolve_index(r, &idx[2], r->nnormals, "normal", "normals", &unused, e)))
+        || (idx[2].present && !resolve_index(r, &idx[2], r->m->nnormals, "normal", "normals", normal, e)))
         return false;
     r->c.p = end;
     return true;
@@ -117,16 +119,22 @@ static bool read_face_vertex(obj_reader *r, uint32_t *vert, arbor_err *e)
  * first vertex, added as the vertices are read. */
 static bool read_face(obj_reader *r, arbor_err *e)
 {
-    uint32_t first = 0, prev = 0, n = 0;
+    uint32_t first = 0, prev = 0, n = 0, first_n = ARBOR_NO_NORMAL, prev_n = ARBOR_NO_NORMAL;
     while (!text_at_eol(&r->c)) {
-        uint32_t v;
-        if (!read_face_vertex(r, &v, e))
+        uint32_t v, vn;
+        if (!read_face_vertex(r, &v, &vn, e))
             return false;
         if (n >= 2 && !arbor_mesh_add_tri(r->m, first, prev, v, r->mat, e))
             return false;
-        if (n == 0)
+        bool normals = first_n != ARBOR_NO_NORMAL || prev_n != ARBOR_NO_NORMAL || vn != ARBOR_NO_NORMAL;
+        if (n >= 2 && normals && !arbor_mesh_set_last_tri_normals(r->m, first_n, prev_n, vn, e))
+            return false;
+        if (n == 0) {
             first = v;
+            first_n = vn;
+        }
         prev = v;
+        prev_n = vn;
         n++;
     }
     if (n < 3)
@@ -145,17 +153,14 @@ static bool read_vertex(obj_reader *r, arbor_err *e)
     return arbor_mesh_add_vert(r->m, p, e);
 }
 
-/* Normals are not kept (the renderer uses geometric normals), but faces
- * refer to them, so they are checked and counted. */
+/* Normals are kept for smooth shading; faces refer to them by index. */
 static bool read_normal(obj_reader *r, arbor_err *e)
 {
-    float n;
-    for (int k = 0; k < 3; k++)
-        if (!text_read_float(&r->c, "normal component", &n, e))
-            return false;
-    if (r->nnormals < UINT32_MAX)
-        r->nnormals++;
-    return true;
+    arbor_vec3 n;
+    if (!text_read_float(&r->c, "normal component", &n.x, e) || !text_read_float(&r->c, "normal component", &n.y, e)
+        || !text_read_float(&r->c, "normal component", &n.z, e))
+        return false;
+    return arbor_mesh_add_normal(r->m, n, e);
 }
 
 /* ---- materials ---- */
@@ -187,13 +192,19 @@ static bool real_path_inside(const char *real, const char *dir)
 }
 
 /* The model folder's real path, resolved at the first mtllib; NULL (and a
- * warning) when it cannot be. */
-static const char *real_dir(obj_reader *r)
+ * warning) when it cannot be. Running out of memory is no reason to load
+ * the model without its materials: it fails the load (false). */
+static bool real_dir(obj_reader *r, const char **out, arbor_err *e)
 {
-    if (r->real_dir == NULL && (r->real_dir = realpath(r->dir, NULL)) == NULL)
+    if (r->real_dir == NULL && (r->real_dir = realpath(r->dir, NULL)) == NULL) {
+        if (errno == ENOMEM)
+            return arbor_fail(e, ARBOR_ERR_NOMEM, "%s:%u: out of memory resolving the model's folder", r->c.name,
+                              r->c.line);
         arbor_mesh_warn(r->m, "%s:%u: the model's folder '%s' cannot be resolved; material libraries not loaded",
                         r->c.name, r->c.line, r->dir);
-    return r->real_dir;
+    }
+    *out = r->real_dir;
+    return true;
 }
 
 /* True when the library (w, n) was loaded before; otherwise remembers it
@@ -228,7 +239,9 @@ static bool load_library(obj_reader *r, const char *w, size_t n, arbor_err *e)
         return true;
     }
     snprintf(path, sizeof path, "%s/%.*s", r->dir, (int)n, w);
-    const char *dir = real_dir(r);
+    const char *dir = NULL;
+    if (!real_dir(r, &dir, e))
+        return false;
     if (dir == NULL)
         return true;
     char *real = realpath(path, NULL);

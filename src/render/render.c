@@ -171,12 +171,22 @@ static const arbor_material *material_of(const arbor_frame *f, uint32_t tri)
     return &f->mesh->mats[f->mesh->tri_mat[tri]];
 }
 
-/* Kd-weighted light arriving at s (linear): ambient plus the unshadowed
- * Lambert term of the point light. */
-static arbor_vec3 lambert(const arbor_frame *f, const sample_surface *s, const arbor_material *mat, tile_tally *t)
+/* The normal to shade with: the vertex normals interpolated where the
+ * model has them (smooth shading), turned to the side of the geometric
+ * normal s->n faces (the viewer's), else s->n itself. */
+static arbor_vec3 shading_normal(const arbor_frame *f, const arbor_hit *h, const sample_surface *s)
+{
+    arbor_vec3 n = arbor_mesh_shading_normal(f->mesh, h->tri, h->u, h->v, s->n);
+    return vec3_dot(n, s->n) < 0.0f ? vec3_scale(n, -1.0f) : n;
+}
+
+/* Kd-weighted light arriving at s (linear), shaded with normal n: ambient
+ * plus the unshadowed Lambert term of the point light. */
+static arbor_vec3 lambert(const arbor_frame *f, const sample_surface *s, arbor_vec3 n, const arbor_material *mat,
+                          tile_tally *t)
 {
     arbor_vec3 to_light = vec3_sub(f->light, s->origin);
-    float cosine = vec3_dot(s->n, vec3_normalize(to_light));
+    float cosine = vec3_dot(n, vec3_normalize(to_light));
     float direct = 0.0f;
     if (cosine > 0.0f) {
         /* t in (0, 1) along the unnormalised vector: the light itself is not an occluder */
@@ -212,7 +222,7 @@ static arbor_vec3 shade_shaded(const arbor_frame *f, arbor_ray r, tile_tally *t)
             r = next;
             continue;
         }
-        return vec3_mul(throughput, vec3_add(mat->ke, lambert(f, &s, mat, t)));
+        return vec3_mul(throughput, vec3_add(mat->ke, lambert(f, &s, shading_normal(f, &h, &s), mat, t)));
     }
 }
 
@@ -222,7 +232,7 @@ static arbor_vec3 shade_normals(const arbor_frame *f, arbor_ray r, tile_tally *t
     if (!trace_primary(f, &r, &h, t))
         return f->params.background;
     sample_surface s = sample_surface_at(f->mesh, &r, &h, f->eps);
-    return vec3_add(vec3_scale(s.n, 0.5f), grey(0.5f));
+    return vec3_add(vec3_scale(shading_normal(f, &h, &s), 0.5f), grey(0.5f));
 }
 
 static arbor_vec3 shade_depth(const arbor_frame *f, arbor_ray r, tile_tally *t)

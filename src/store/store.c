@@ -109,7 +109,8 @@ static uint64_t build_estimate(arbor_accel_kind kind, uint32_t ntris)
 uint64_t arbor_mesh_bytes(const arbor_mesh *m)
 {
     uint64_t b = (uint64_t)m->nverts * sizeof *m->verts + (uint64_t)m->ntris * (3 + 1) * sizeof(uint32_t) +
-                 (uint64_t)m->nmats * sizeof *m->mats;
+                 (uint64_t)m->nmats * sizeof *m->mats + (uint64_t)m->nnormals * sizeof *m->normals +
+                 (m->tri_normals != NULL ? (uint64_t)m->ntris * 3 * sizeof(uint32_t) : 0);
     for (uint32_t i = 0; i < m->nwarnings; i++)
         b += strlen(m->warnings[i]) + 1;
     return b;

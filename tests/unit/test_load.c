@@ -233,6 +233,59 @@ static void test_polygons_become_fans_from_their_first_vertex(void)
     arbor_mesh_free(&m);
 }
 
+/* vn lines are kept, and every triangle of a fan gets its corners' normals;
+ * faces naming none have none, and a normal index past the vn lines read is
+ * an error with its line. */
+static void test_vertex_normals_follow_the_fan(void)
+{
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(load_obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+                              "vn 0 0 1\nvn 0 1 0\nvn 1 0 0\nvn 0 0 -1\n"
+                              "f 1 2 3\n"
+                              "f 1//1 2//2 3//3 4//4\n"
+                              "vt 0 0\nf 4/1/-1 3/1/-2 2/1/-3\n",
+                              &m, &e), e.msg);
+    TEST_ASSERT_EQUAL_UINT32(4, m.nnormals);
+    TEST_ASSERT_EQUAL_FLOAT(-1.0f, m.normals[3].z);
+    TEST_ASSERT_EQUAL_UINT32(4, m.ntris);
+    TEST_ASSERT_NOT_NULL(m.tri_normals);
+    const uint32_t want[4][3] = {{ARBOR_NO_NORMAL, ARBOR_NO_NORMAL, ARBOR_NO_NORMAL}, {0, 1, 2}, {0, 2, 3}, {3, 2, 1}};
+    for (int t = 0; t < 4; t++)
+        TEST_ASSERT_EQUAL_UINT32_ARRAY(want[t], m.tri_normals + 3 * t, 3);
+    arbor_mesh_free(&m);
+
+    TEST_ASSERT_TRUE(load_obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n", &m, &e));
+    TEST_ASSERT_NULL(m.tri_normals);
+    arbor_mesh_free(&m);
+    assert_obj_fails("v 0 0 0\nv 1 0 0\nv 1 1 0\nvn 0 0 1\nvn 0 1 0\nf 1//1 2//2 3//2\nf 1//1 2//2 3//3\n",
+                     "t.obj:7: normal index 3 out of range (2 normals)");
+}
+
+/* The shading normal interpolates the corners' normals by the hit's
+ * barycentrics and falls back to the geometric normal where a corner has
+ * none or they cancel out. */
+static void test_shading_normal_interpolates(void)
+{
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_TRUE(load_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 1 0 0\nvn 0 1 0\nvn 0 0 1\nvn -1 0 0\n"
+                              "f 1//1 2//2 3//3\nf 1 2 3\nf 1//1 2//4 3//4\n",
+                              &m, &e));
+    arbor_vec3 g = vec3(0, 0, 1);
+    arbor_vec3 n = arbor_mesh_shading_normal(&m, 0, 0.0f, 0.0f, g);
+    TEST_ASSERT_EQUAL_FLOAT(1.0f, n.x);
+    n = arbor_mesh_shading_normal(&m, 0, 0.5f, 0.5f, g);
+    TEST_ASSERT_FLOAT_WITHIN(1e-6f, 0.0f, n.x);
+    TEST_ASSERT_FLOAT_WITHIN(1e-6f, sqrtf(0.5f), n.y);
+    TEST_ASSERT_FLOAT_WITHIN(1e-6f, sqrtf(0.5f), n.z);
+    n = arbor_mesh_shading_normal(&m, 1, 0.25f, 0.25f, g);
+    TEST_ASSERT_EQUAL_FLOAT(1.0f, n.z);
+    n = arbor_mesh_shading_normal(&m, 2, 0.5f, 0.0f, g); /* (1,0,0) and (-1,0,0) halfway: zero */
+    TEST_ASSERT_EQUAL_FLOAT(1.0f, n.z);
+    arbor_mesh_free(&m);
+}
+
 static void test_crlf_tabs_comments_and_skipped_statements(void)
 {
     arbor_mesh m;
@@ -1116,6 +1169,8 @@ int main(void)
     RUN_TEST(test_every_index_form);
     RUN_TEST(test_negative_indices_count_from_the_current_end);
     RUN_TEST(test_polygons_become_fans_from_their_first_vertex);
+    RUN_TEST(test_vertex_normals_follow_the_fan);
+    RUN_TEST(test_shading_normal_interpolates);
     RUN_TEST(test_crlf_tabs_comments_and_skipped_statements);
     RUN_TEST(test_faces_before_usemtl_use_the_default_material);
     RUN_TEST(test_mtl_values_reach_the_materials_faces_use);
