@@ -511,3 +511,43 @@ def test_long_and_odd_urls_answered():
           b" HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
     check(d.alive(), "daemon died on odd URLs")
     expect_ok(d.get("/healthz"))
+
+
+@test
+def test_ray_bvh_and_kd_agree():
+    """The primary ray through a pixel hits the same triangle at the same t in every tree."""
+    d = main_daemon()
+    cam = {"yaw": 35, "pitch": 25, "distance": 1.3, "fov": 50}
+    for model in ("menger", "sphere"):
+        for x, y in ((10, 10), (32, 24), (40, 17), (55, 40), (5, 44)):
+            hits = {}
+            for accel, builder in (("bvh", "sah"), ("kd", "sah"), ("bvh", "median"), ("kd", "spatial")):
+                j = expect_json(d.post("/api/ray", {"model": model, "accel": accel, "builder": builder,
+                                                    "camera": cam, "width": 64, "height": 48, "x": x, "y": y}))
+                h = j["hit"]
+                hits[accel + ":" + builder] = None if h is None else (h["triangle"], round(h["t"], 5))
+            check(len(set(hits.values())) == 1, "%s pixel (%d,%d): trees disagree: %r" % (model, x, y, hits))
+
+
+@test
+def test_metrics_count_requests_and_frames():
+    d = main_daemon()
+    s0, _ = d.metrics()
+    st0 = expect_json(d.get("/api/stats"))["daemon"]
+    for _ in range(3):
+        expect_ok(d.get("/healthz"))
+    for i in range(2):
+        expect_ok(d.post("/api/render", {"model": "cornell", "width": 8, "height": 8, "seed": i + 1}))
+    s1, _ = d.metrics()
+    st1 = expect_json(d.get("/api/stats"))["daemon"]
+
+    def healthz(samples):
+        return sum(v for lab, v in samples.get("arbor_http_requests_total", [])
+                   if "health" in lab.get("route", "") and lab.get("status") == "200")
+    eq(healthz(s1) - healthz(s0), 3.0, "arbor_http_requests_total{route=~health,status=200} after 3 GET /healthz")
+    rc0 = metric_value(s0, "arbor_render_seconds_count") or 0
+    rc1 = metric_value(s1, "arbor_render_seconds_count") or 0
+    eq(rc1 - rc0, 2.0, "arbor_render_seconds_count after 2 frames")
+    eq(st1["frames"] - st0["frames"], 2, "daemon.frames after 2 frames")
+    eq(metric_value(s1, "arbor_render_seconds_count"), float(st1["frames"]),
+       "arbor_render_seconds_count vs daemon.frames")

@@ -155,6 +155,10 @@ CASES = [
      400, "bad_request", re.compile(r"(:3\b|line 3\b)")),
     ("upload_bad_number_line_4", "limits", "PUT", "/api/models/badnum", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 x 0\nf 1 2 3\n",
      400, "bad_request", re.compile(r"(:4\b|line 4\b)")),
+    ("upload_empty", "limits", "PUT", "/api/models/empty", "", 400, "bad_request", None),
+    ("upload_bad_gzip", "limits", "PUT", "/api/models/badgz", b"\x1f\x8b\x08\x00" + b"\x00" * 6 + b"garbage-not-deflate" * 10,
+     400, "bad_request", None),
+    ("upload_no_triangles", "limits", "PUT", "/api/models/notris", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", 400, "bad_request", None),
     ("upload_bad_ply", "limits", "PUT", "/api/models/badply",
      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
      "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 9\n",

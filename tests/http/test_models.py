@@ -258,3 +258,40 @@ def test_upload_gzip_bomb_refused():
     check(len(bomb) < 16384, "bomb is %d bytes" % len(bomb))
     expect_error(put(d, "bomb", bomb), 413, "too_large")
     expect_error(d.get("/api/models/bomb"), 404, "not_found")
+
+
+def _magenta_pixels(d, name):
+    _, _, ch, rows = png_of(d.post("/api/render", {"model": name, "width": 32, "height": 32}))
+    n = 0
+    for row in rows:
+        for x in range(0, len(row), ch):
+            r, g, b = row[x], row[x + 1], row[x + 2]
+            n += r > 2 * g + 30 and b > 2 * g + 30
+    return n
+
+
+@test
+def test_upload_mtllib_cannot_lead_outside():
+    """An uploaded OBJ's mtllib is read only inside the models folder: not ../, not absolute, not a
+    symlink out. The outside .mtl makes the model magenta; a frame shows whether it was read."""
+    d = upload_daemon()
+    evil = b"newmtl EVIL_OUTSIDE\nKd 1 0 1\nKa 1 0 1\n"
+    # control: the same .mtl sent along (inside) does make it magenta
+    obj = b"mtllib inside.mtl\nusemtl EVIL_OUTSIDE\n" + TETRA_OBJ
+    body, ctype = multipart([("model", "inside.obj", "model/obj", obj), ("mtl", "inside.mtl", "text/plain", evil)])
+    expect_json(d.req("POST", "/api/models/mtl-inside", body=body, headers={"Content-Type": ctype}), 201)
+    check(_magenta_pixels(d, "mtl-inside") > 20, "control: the model with its magenta .mtl shows no magenta")
+    outside = os.path.join(d.tmp, "outside.mtl")
+    with open(outside, "wb") as f:
+        f.write(evil)
+    link = os.path.join(d.models_dir, "link-out.mtl")
+    if not os.path.lexists(link):
+        os.symlink(outside, link)
+    for i, lib in enumerate(("../outside.mtl", outside, "link-out.mtl")):
+        obj = ("mtllib %s\nusemtl EVIL_OUTSIDE\n" % lib).encode() + TETRA_OBJ
+        r = put(d, "mtl-out-%d" % i, obj)
+        if r.status != 201:
+            check(r.status == 400, "mtllib %s: %s (expected 201 with a warning, or 400)" % (lib, r.short()))
+            continue
+        n = _magenta_pixels(d, "mtl-out-%d" % i)
+        check(n == 0, "mtllib %s: the .mtl outside the models folder was read (%d magenta pixels)" % (lib, n))
