@@ -45,6 +45,21 @@ static cJSON *vec_json(arbor_vec3 v)
     return cJSON_CreateFloatArray(f, 3);
 }
 
+/* A node as JSON: a box of the overlay is {min, max, depth, leaf, tris}; a
+ * step of a ray's path nests its box and adds the tests made there. */
+static cJSON *node_json(const arbor_node_info *n, bool step)
+{
+    cJSON *o = step ? cJSON_CreateObject() : box_json(n->box);
+    if (step)
+        cJSON_AddItemToObject(o, "box", box_json(n->box));
+    cJSON_AddNumberToObject(o, "depth", n->depth);
+    cJSON_AddBoolToObject(o, "leaf", n->leaf);
+    if (step)
+        cJSON_AddNumberToObject(o, "tests", n->tests);
+    cJSON_AddNumberToObject(o, "tris", n->tris);
+    return o;
+}
+
 /* ---- boxes ---- */
 
 typedef struct {
@@ -66,11 +81,7 @@ static bool on_node(void *user, const arbor_node_info *n)
         w->truncated = true;
         return false;
     }
-    cJSON *o = box_json(n->box);
-    cJSON_AddNumberToObject(o, "depth", n->depth);
-    cJSON_AddBoolToObject(o, "leaf", n->leaf);
-    cJSON_AddNumberToObject(o, "tris", n->tris);
-    cJSON_AddItemToArray(w->boxes, o);
+    cJSON_AddItemToArray(w->boxes, node_json(n, false));
     w->count++;
     return true;
 }
@@ -103,13 +114,7 @@ static bool on_step(void *user, const arbor_node_info *n)
         w->truncated = true;
         return true; /* keep tracing: the counts must stay whole */
     }
-    cJSON *o = cJSON_CreateObject();
-    cJSON_AddItemToObject(o, "box", box_json(n->box));
-    cJSON_AddNumberToObject(o, "depth", n->depth);
-    cJSON_AddBoolToObject(o, "leaf", n->leaf);
-    cJSON_AddNumberToObject(o, "tests", n->tests);
-    cJSON_AddNumberToObject(o, "tris", n->tris);
-    cJSON_AddItemToArray(w->steps, o);
+    cJSON_AddItemToArray(w->steps, node_json(n, true));
     w->count++;
     return true;
 }
