@@ -25,7 +25,7 @@ bool loader_fail_errno(arbor_err *e, const char *path, const char *what, int err
     char reason[128];
     if (strerror_r(err, reason, sizeof reason) != 0)
         snprintf(reason, sizeof reason, "error %d", err);
-    return arbor_fail(e, ARBOR_ERR_IO, "%s: %s: %s", path, what, reason);
+    return arbor_fail(e, err == ENOMEM ? ARBOR_ERR_NOMEM : ARBOR_ERR_IO, "%s: %s: %s", path, what, reason);
 }
 
 /* Only regular files: a FIFO or a device could block or never end. */
@@ -101,7 +101,7 @@ static bool read_gz(const char *path, size_t max_bytes, char **data, size_t *len
         free(buf);
         return arbor_fail(e, ARBOR_ERR_IO, "%s: decompresses to more than the limit of %zu bytes", path, max_bytes);
     }
-    if (!ok) {
+    if (!ok || zerr == Z_MEM_ERROR) {
         free(buf);
         return arbor_fail(e, ARBOR_ERR_NOMEM, "%s: out of memory decompressing (%zu bytes so far)", path, n);
     }
