@@ -31,13 +31,30 @@ typedef struct {
     uint8_t *data;
     size_t len, cap;
     arbor_err *err;
+    bool oom;       /* an allocation failed: libpng's error is then NOMEM, not IO */
 } png_sink;
 
 static void on_error(png_structp png, png_const_charp msg)
 {
     png_sink *sink = png_get_error_ptr(png);
-    arbor_fail(sink->err, ARBOR_ERR_IO, "png: %s", msg);
+    arbor_fail(sink->err, sink->oom ? ARBOR_ERR_NOMEM : ARBOR_ERR_IO, "png: %s", msg);
     png_longjmp(png, 1);
+}
+
+/* libpng's and its zlib stream's allocations, so that running out of
+ * memory is told apart from a failed write. */
+static png_voidp png_alloc(png_structp png, png_alloc_size_t n)
+{
+    void *p = malloc(n);
+    if (p == NULL)
+        ((png_sink *)png_get_mem_ptr(png))->oom = true;
+    return p;
+}
+
+static void png_free_mem(png_structp png, png_voidp p)
+{
+    (void)png;
+    free(p);
 }
 
 static void on_warning(png_structp png, png_const_charp msg)
@@ -54,8 +71,10 @@ static void write_memory(png_structp png, png_bytep bytes, size_t n)
         while (cap < sink->len + n)
             cap *= 2;
         uint8_t *grown = realloc(sink->data, cap);
-        if (grown == NULL)
+        if (grown == NULL) {
+            sink->oom = true;
             png_error(png, "out of memory for the encoded image");
+        }
         sink->data = grown;
         sink->cap = cap;
     }
@@ -72,7 +91,8 @@ static bool encode(const uint8_t *rgb, int width, int height, png_sink *sink)
 {
     if (width < 1 || height < 1 || rgb == NULL)
         return arbor_fail(sink->err, ARBOR_ERR_INVALID, "png: no image to encode (%dx%d)", width, height);
-    png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, sink, on_error, on_warning);
+    png_structp png = png_create_write_struct_2(PNG_LIBPNG_VER_STRING, sink, on_error, on_warning, sink, png_alloc,
+                                                png_free_mem);
     png_infop info = png != NULL ? png_create_info_struct(png) : NULL;
     if (info == NULL) {
         png_destroy_write_struct(&png, NULL);
@@ -103,7 +123,7 @@ static bool fail_errno(arbor_err *e, const char *path, const char *what, int err
     char reason[128];
     if (strerror_r(err, reason, sizeof reason) != 0)
         snprintf(reason, sizeof reason, "error %d", err);
-    return arbor_fail(e, ARBOR_ERR_IO, "%s: %s: %s", path, what, reason);
+    return arbor_fail(e, err == ENOMEM ? ARBOR_ERR_NOMEM : ARBOR_ERR_IO, "%s: %s: %s", path, what, reason);
 }
 
 /* Encodes into an open stream and closes it. A failed write shows up in
@@ -111,7 +131,7 @@ static bool fail_errno(arbor_err *e, const char *path, const char *what, int err
  * fclose; either way the system's reason is what the message gives. */
 static bool encode_to(FILE *f, const char *path, const uint8_t *rgb, int width, int height, arbor_err *e)
 {
-    png_sink sink = {f, NULL, 0, 0, e};
+    png_sink sink = {f, NULL, 0, 0, e, false};
     bool ok = encode(rgb, width, height, &sink);
     int err = ferror(f) ? (errno ? errno : EIO) : 0;
     if (fclose(f) != 0 && err == 0)
@@ -198,7 +218,7 @@ bool arbor_png_write_file(const char *path, const uint8_t *rgb, int width, int h
 
 bool arbor_png_encode(const uint8_t *rgb, int width, int height, uint8_t **out, size_t *out_len, arbor_err *e)
 {
-    png_sink sink = {NULL, NULL, 0, 0, e};
+    png_sink sink = {NULL, NULL, 0, 0, e, false};
     if (!encode(rgb, width, height, &sink)) {
         free(sink.data);
         return false;
