@@ -1,5 +1,6 @@
 """Every failure of the issue: status and {"error":{"code","message"}}; one test per case."""
 import json
+import os
 import re
 
 from harness import (add_test, check, eq, expect_error, expect_ok, limits_daemon, main_daemon, test)
@@ -179,6 +180,11 @@ def _make(name, which, method, path, body, status, code, contains):
         r = d.req(method, path, **kw)
         expect_error(r, status, code, contains)
         check(d.alive(), "daemon died after %s %s" % (method, path))
+        if method == "PUT" and path.startswith("/api/models/"):
+            name = path.split("/")[3].split("?")[0]
+            left = [f for f in os.listdir(d.models_dir) if f.startswith(name + ".")]
+            check(not left, "the refused upload left %s in the models folder" % left)
+            expect_error(d.get("/api/models/" + name), 404, "not_found")
     return fn
 
 

@@ -1,5 +1,6 @@
 """--max-memory: least recently used unused trees are evicted; what cannot fit is refused with 507."""
 import gzip
+import os
 import re
 
 from harness import Daemon, check, eq, expect_error, expect_json, expect_ok, our, test
@@ -91,10 +92,12 @@ def test_memory_budget_evicts_least_recently_used():
                   timeout=120)
         e = expect_error(r, 507, "insufficient_memory")
         check(BYTES.search(e["message"]), "507 message %r does not say how many bytes were needed" % e["message"])
-        expect_error(d.get("/api/models/toobig"), 404, "not_found")
+        left = [f for f in os.listdir(d.models_dir) if f.startswith("toobig")]
+        check(not left, "the refused upload left %s in the models folder" % left)
         after = expect_json(d.get("/api/models"))["models"]
         eq([(m["name"], m["triangles"], m["version"]) for m in after],
            [(m["name"], m["triangles"], m["version"]) for m in before], "models after the refused upload")
+        expect_error(d.get("/api/models/toobig"), 404, "not_found")
         s = states(d)
         eq((s[ta], s[tb]), ("ready", "ready"), "A and B after an upload that could never fit was refused")
         expect_ok(d.post("/api/render", {"model": "menger", "width": 16, "height": 16}))
