@@ -551,3 +551,13 @@ def test_metrics_count_requests_and_frames():
     eq(st1["frames"] - st0["frames"], 2, "daemon.frames after 2 frames")
     eq(metric_value(s1, "arbor_render_seconds_count"), float(st1["frames"]),
        "arbor_render_seconds_count vs daemon.frames")
+
+
+@test
+def test_boxes_truncated_at_max_boxes():
+    d = main_daemon()
+    j = expect_json(d.get("/api/models/menger/trees/kd/spatial/boxes?depth=40&all=1"))
+    check(j["count"] <= j["max_boxes"] == 20000, "count %r, max_boxes %r" % (j["count"], j["max_boxes"]))
+    eq(len(j["boxes"]), j["count"], "len(boxes) vs count")
+    check(j["truncated"] is True, "kd:spatial of menger to depth 40 (442,231 nodes) not truncated: count %r"
+          % j["count"])

@@ -128,3 +128,48 @@ def test_memory_tree_that_cannot_fit_507():
         d.stop_clean()
     finally:
         d.cleanup()
+
+
+@test
+def test_memory_tree_in_use_is_not_evicted():
+    """The least recently built tree is rendering a frame: eviction passes it over and takes the next."""
+    import threading
+    import time
+    p = probe()
+    A, B, C = (p[t] for t in TREES)
+    budget = p["models"] + A + B + C // 2 + 64 * 1024
+    d = Daemon([our("menger.obj"), our("cornell.obj")],
+               ["--threads", "2", "--prebuild", "none", "--max-memory", str(budget), "--max-pixels", "256M"],
+               name="in-use budget daemon")
+    try:
+        ta, tb, tc = TREES
+        expect_ok(build(d, *ta))
+        expect_ok(build(d, *tb))
+        out = {}
+
+        def frame():
+            try:
+                out["r"] = d.post("/api/render", {"model": "menger", "accel": ta[0], "builder": ta[1],
+                                                  "width": 1536, "height": 1536, "spp": 16, "format": "json"},
+                                  timeout=120)
+            except Exception as e:
+                out["r"] = e
+        t = threading.Thread(target=frame, daemon=True)
+        t.start()
+        end = time.time() + 20
+        while expect_json(d.get("/api/stats"))["daemon"]["queue"]["rendering"] < 1:
+            check(time.time() < end and "r" not in out, "the frame with A never rendered")
+            time.sleep(0.01)
+        expect_ok(build(d, *tc))
+        s = states(d)
+        rendering = "r" not in out
+        eq((s[ta], s[tb], s[tc]), ("ready", "absent", "ready"),
+           "states after building C while a frame renders with A (A in use: B is evicted instead)")
+        check(rendering, "the frame with A finished before C was built; make it heavier")
+        t.join(120)
+        r = out.get("r")
+        check(not isinstance(r, Exception) and r is not None and r.status == 200, "the frame with A: %r" %
+              (r.short() if hasattr(r, "short") else r))
+        d.stop_clean()
+    finally:
+        d.cleanup()
