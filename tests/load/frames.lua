@@ -18,6 +18,8 @@ function init(args)
    for i = 1, #args do models[i] = args[i] end
    if #models == 0 then models = { "cornell" } end
    statuses = {}
+   served = {}    -- per 200: queue+build+render+encode ms from Server-Timing
+   rendered = {}  -- per 200: render ms
    n = 0
    pending_backoff = 0
 end
@@ -35,6 +37,17 @@ end
 
 function response(status, headers, body)
    statuses[status] = (statuses[status] or 0) + 1
+   if status == 200 then
+      local st = headers["Server-Timing"] or headers["server-timing"]
+      if st then
+         local total = 0
+         for name, dur in string.gmatch(st, "(%w+);dur=([%d%.]+)") do
+            total = total + tonumber(dur)
+            if name == "render" then rendered[#rendered + 1] = tonumber(dur) end
+         end
+         served[#served + 1] = total
+      end
+   end
    if status == 503 and backoff > 0 then pending_backoff = pending_backoff + 1 end
 end
 
@@ -48,11 +61,21 @@ if backoff > 0 then
    end
 end
 
+local function pct(list, p)
+   if #list == 0 then return 0 end
+   table.sort(list)
+   local i = math.max(1, math.min(#list, math.ceil(#list * p / 100)))
+   return list[i]
+end
+
 function done(summary, latency, requests)
    local total = {}
+   local served_all, rendered_all = {}, {}
    for _, t in ipairs(threads) do
       local s = t:get("statuses")
       for k, v in pairs(s) do total[k] = (total[k] or 0) + v end
+      for _, v in ipairs(t:get("served")) do served_all[#served_all + 1] = v end
+      for _, v in ipairs(t:get("rendered")) do rendered_all[#rendered_all + 1] = v end
    end
    local secs = summary.duration / 1e6
    local ok = total[200] or 0
@@ -61,6 +84,8 @@ function done(summary, latency, requests)
    io.write(string.format("LOAD frames_per_s %.1f\n", ok / secs))
    io.write(string.format("LOAD p50_ms %.1f\n", latency:percentile(50) / 1000))
    io.write(string.format("LOAD p99_ms %.1f\n", latency:percentile(99) / 1000))
+   io.write(string.format("LOAD frame_server_ms p50 %.1f p99 %.1f\n", pct(served_all, 50), pct(served_all, 99)))
+   io.write(string.format("LOAD frame_render_ms p50 %.1f\n", pct(rendered_all, 50)))
    local codes = {}
    for k, _ in pairs(total) do table.insert(codes, k) end
    table.sort(codes)

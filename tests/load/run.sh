@@ -79,7 +79,9 @@ for run in 1 2; do
     fps=$(awk '/^LOAD frames_per_s/ {print $3}' "$out")
     p50=$(awk '/^LOAD p50_ms/ {print $3}' "$out")
     p99=$(awk '/^LOAD p99_ms/ {print $3}' "$out")
-    echo "frames/s: ${fps:-?}   latency p50: ${p50:-?} ms   p99: ${p99:-?} ms   requests: $(awk '/^LOAD requests/ {print $3}' "$out")"
+    echo "frames/s: ${fps:-?}   latency of every answer (wrk): p50 ${p50:-?} ms  p99 ${p99:-?} ms   requests: $(awk '/^LOAD requests/ {print $3}' "$out")"
+    awk '/^LOAD frame_server_ms/ {printf "200 frames, in the daemon (Server-Timing queue+build+render+encode): p50 %s ms  p99 %s ms\n", $4, $6}' "$out"
+    awk '/^LOAD frame_render_ms/ {printf "200 frames, render alone: p50 %s ms\n", $4}' "$out"
     awk '/^LOAD status/ {printf "status %s: %s\n", $3, $4}' "$out"
     bad=$(awk '/^LOAD status/ && $3 != 200 && $3 != 503 {printf "%s(%s) ", $3, $4}' "$out")
     [ -n "$bad" ] && { echo "FAIL: run $run answered statuses other than 200/503: $bad"; fail=1; }
