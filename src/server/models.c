@@ -366,6 +366,10 @@ static void upload_run(void *ctx, uint32_t task)
     } else if ((stamp = arbor_file_stamp(file)) == 0) { /* taken at once: what sync.c compares */
         http_reply_error(r, 507, "insufficient_storage", "the saved upload %s is gone", file);
     } else if (!arbor_store_add_model(s->store, j->name, file, &mesh, flags, &version, &err)) {
+        /* A new model refused (no room) leaves no file: the daemons sharing
+         * the folder would load it, and a restart too. */
+        if (!j->replaced)
+            unlink(file);
         http_reply_err(r, &err);
     } else {
         arbor_model *m = arbor_store_acquire_model(s->store, j->name);
