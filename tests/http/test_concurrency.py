@@ -1,5 +1,6 @@
 """Build once under concurrent first requests; a full queue answers 503 at once; stream keys; timeouts."""
 import os
+import re
 import threading
 import time
 
@@ -217,3 +218,88 @@ def test_stream_keys_are_independent():
     for i, r in enumerate(res):
         check(not isinstance(r, Exception), "frame %d: %r" % (i, r))
         eq(r.status, 200, "frame %d (stream key-%d): %s" % (i, i, r.short()))
+
+
+@test
+def test_mixed_concurrent_requests_stay_consistent():
+    """8 clients for ~4 s: uploads, replaces, deletes, frames, tree builds, lists and stats on a small
+    pool of names. Every answer is a well-formed one of the expected statuses; then the daemon is
+    consistent and exits 0."""
+    import random
+    from test_models import CUBE_OBJ, TETRA_OBJ
+    d = Daemon([our("cornell.obj"), our("sphere.obj")], ["--threads", "2", "--queue", "8"], copy=True,
+               name="mixed daemon")
+    try:
+        names = ["mix-a", "mix-b", "mix-c"]
+        bad = []
+        deadline = time.time() + 4
+
+        def client(i):
+            rnd = random.Random(i)
+            n = 0
+            while time.time() < deadline:
+                n += 1
+                name = rnd.choice(names + ["sphere"])
+                op = rnd.randrange(9)
+                try:
+                    if op == 0 and name != "sphere":
+                        r = d.req("PUT", "/api/models/" + name, body=rnd.choice([CUBE_OBJ, TETRA_OBJ]))
+                        ok = {201, 409}
+                    elif op == 1 and name != "sphere":
+                        r = d.req("PUT", "/api/models/%s?replace=1" % name, body=rnd.choice([CUBE_OBJ, TETRA_OBJ]))
+                        ok = {200, 201}
+                    elif op == 2 and name != "sphere":
+                        r = d.req("DELETE", "/api/models/" + name)
+                        ok = {200, 404}
+                    elif op in (3, 4):
+                        r = d.post("/api/render", {"model": name, "width": 48, "height": 32,
+                                                   "accel": rnd.choice(["bvh", "kd"]),
+                                                   "builder": rnd.choice(["sah", "median", "mean", "spatial"]),
+                                                   "mode": rnd.choice(["shaded", "normals", "depth", "ao", "heat"]),
+                                                   **({"stream": "mix-%d" % (i % 2)} if rnd.random() < 0.3 else {})})
+                        ok = {200, 404, 409, 503}
+                    elif op == 5:
+                        r = d.post("/api/models/%s/trees" % name, {"accel": rnd.choice(["bvh", "kd"]),
+                                                                  "builder": rnd.choice(["sah", "median", "mean", "spatial"]),
+                                                                  "wait": rnd.random() < 0.5})
+                        ok = {200, 202, 404}
+                    elif op == 6:
+                        r = d.get("/api/models")
+                        ok = {200}
+                    elif op == 7:
+                        r = d.get("/api/stats?model=%s" % name)
+                        ok = {200, 404}
+                    else:
+                        r = d.get("/api/models/%s/trees/bvh/sah/boxes?depth=2" % name)
+                        ok = {200, 404}
+                except Exception as e:
+                    bad.append("client %d op %d: %r" % (i, op, e))
+                    continue
+                if r.status not in ok:
+                    bad.append("%s -> %s" % (r.req[:80], r.short()[:160]))
+                elif r.status >= 400:
+                    try:
+                        j = r.json()
+                        if not isinstance(j.get("error"), dict):
+                            bad.append("%s -> %d without an error object" % (r.req[:80], r.status))
+                    except harness_fail:
+                        bad.append("%s -> %d not JSON" % (r.req[:80], r.status))
+            return n
+
+        from harness import Fail as harness_fail
+        counts = parallel(8, client)
+        kinds = sorted({re.sub(r"mix-.", "mix-?", re.sub(r"\{.*?\} ->", "->", b))[:420] for b in bad})
+        check(not bad, "%d bad answers of %s requests, %d kinds: %s" % (len(bad), counts, len(kinds), " ; ".join(kinds[:8])))
+        check(d.alive(), "the daemon died")
+        ms = expect_json(d.get("/api/models"))["models"]
+        files = sorted(f for f in os.listdir(d.models_dir) if f.endswith((".obj", ".ply", ".gz")))
+        listed = sorted(os.path.basename(m["file"]) for m in ms)
+        eq(listed, files, "models listed vs files in the models folder after the storm")
+        for m in ms:
+            expect_ok(d.post("/api/render", {"model": m["name"], "width": 16, "height": 16}))
+        mem = expect_json(d.get("/api/stats"))["daemon"]
+        eq((mem["queue"]["waiting"], mem["queue"]["rendering"]), (0, 0), "queue after the storm")
+        eq(mem["memory"]["models"], sum(m["bytes"] for m in ms), "daemon.memory.models vs the models listed")
+        d.stop_clean()
+    finally:
+        d.cleanup()
