@@ -59,8 +59,13 @@ test('a mouse drag changes the frame and sends a render request with a new camer
         assert.ok(sent.some((r) => r.spp === 1 && r.width < 640), 'no quick low-resolution frame while dragging');
         const last = sent[sent.length - 1];
         assert.equal(last.width, 640);
-        assert.equal(new Set(rec.renders.map((r) => r.stream)).size, 1, 'one stream key for the pane');
-        assert.ok(rec.maxInflight() <= 1, `${rec.maxInflight()} frames were in flight at once`);
+        // full frames come as strips (region) with the pane's stream key plus /strip
+        assert.equal(new Set(rec.renders.map((r) => r.stream.split('/')[0])).size, 1, 'one stream key for the pane');
+        const strips = [0, 120, 240, 360].map((y) => ({ x: 0, y, w: 640, h: 120 }));
+        assert.ok(rec.maxInflight() <= strips.length, `${rec.maxInflight()} requests were in flight at once (one frame: ${strips.length})`);
+        const lastFull = sent.filter((r) => r.width === 640);
+        const rows = lastFull.slice(-strips.length).map((r) => r.region).sort((a, b) => a.y - b.y);
+        assert.deepEqual(rows, strips, 'the last full frame was not asked as its strips');
         assert.notEqual(after.hash, before.hash, 'the frame did not change');
         assert.deepEqual(errors, []);
     });

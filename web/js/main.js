@@ -467,7 +467,7 @@ class App {
 
     savePNG() {
         const p = this.panes[0];
-        if (!p || !p.lastFull) {
+        if (!p || !p.lastFull || !p.lastFull.blob) {
             this.notify('There is no full frame to save yet; let the view rest a moment.', 'error');
             return;
         }

@@ -1,15 +1,33 @@
 // view.js - one frame pane: a canvas with arbord's frames, an overlay canvas
 // for tree boxes and the inspected ray, and the frame loop. While the view
 // moves the pane asks for quick frames (a fraction of the resolution, 1 spp);
-// at rest, for the full frame. Never more than one request in flight: a quick
-// frame is awaited, a full frame the view no longer wants is aborted and
-// superseded on the daemon by the next frame with the pane's `stream` key.
+// at rest, for the full frame, as horizontal strips (`region`) asked for at
+// once and drawn as each arrives: behind a load balancer every node renders
+// some, and on one daemon the frame still shows progressively (the strips
+// are the whole frame's pixels, bit for bit). Heat frames stay whole: their
+// colours scale to the whole frame's 99th percentile. Never more than one
+// frame in flight: a quick frame is awaited, a full frame the view no longer
+// wants is aborted and superseded on the daemon by the next frame with the
+// same `stream` key (the pane's, one per strip).
 
 import * as api from './api.js';
 import { cameraFromRequest, requestCamera, project } from './camera.js';
 import { drawBoxes, drawMarker, depthColour, projectedRect } from './overlay.js';
 
 const QUICK_PIXELS = 80000;
+const STRIP_ROWS = 128;
+const MAX_STRIPS = 8;
+
+/** The regions of a full frame: horizontal strips of about STRIP_ROWS rows, at most MAX_STRIPS. */
+export function stripRegions(w, h) {
+    const n = Math.max(1, Math.min(MAX_STRIPS, Math.round(h / STRIP_ROWS)));
+    const out = [];
+    for (let i = 0; i < n; i++) {
+        const y0 = Math.floor((h * i) / n), y1 = Math.floor((h * (i + 1)) / n);
+        out.push({ x: 0, y: y0, w, h: y1 - y0 });
+    }
+    return out;
+}
 
 /** Power-of-two divisor giving a quick frame of at most QUICK_PIXELS pixels (at least 2). */
 export function quickDivisor(w, h) {
@@ -144,10 +162,12 @@ export class Pane {
         this.badgeQuality.hidden = false;
         this.badgeQuality.textContent = quick ? 'moving: quick frame' : `rendering ${req.width}×${req.height}, ${req.spp} spp…`;
         const sent = performance.now();
+        const regions = quick || req.mode === 'heat' ? [null] : stripRegions(req.width, req.height);
         let frame;
         try {
-            frame = await api.renderFrame({ ...req, stream: this.stream }, { signal: controller.signal });
+            frame = await this.fetchFrame(req, regions, flight);
         } catch (e) {
+            controller.abort();
             if (this.inflight === flight) this.inflight = null;
             if (e.name === 'AbortError') return;
             if (e.code === 'superseded') { this.pump(); return; }
@@ -161,27 +181,9 @@ export class Pane {
             return;
         }
         if (this.inflight !== flight) return;
-        let bitmap;
-        try {
-            bitmap = await createImageBitmap(frame.blob);
-        } catch (e) {
-            this.inflight = null;
-            this.showError(key, new api.ApiError('Decoding the frame', 200, '', e.message));
-            return;
-        }
-        if (this.inflight !== flight) { bitmap.close(); return; }
         this.inflight = null;
         this.clearError();
         const [W, H] = this.app.state.res;
-        if (this.canvas.width !== W || this.canvas.height !== H) {
-            this.canvas.width = W;
-            this.canvas.height = H;
-        }
-        const ctx = this.canvas.getContext('2d');
-        ctx.imageSmoothingEnabled = true;
-        ctx.imageSmoothingQuality = quick ? 'low' : 'high';
-        ctx.drawImage(bitmap, 0, 0, W, H);
-        bitmap.close();
         const model = this.app.model();
         this.shown = {
             key, quick, req,
@@ -196,6 +198,7 @@ export class Pane {
         this.canvas.dataset.camera = JSON.stringify(req.camera);
         if (!quick) {
             this.lastFull = { blob: frame.blob, req };
+            if (!frame.blob) this.canvas.toBlob((b) => { if (this.lastFull && this.lastFull.req === req) this.lastFull.blob = b; });
             if (req.mode === 'heat' && frame.heatScale > 0) this.heat = { tree: `${req.model}/${req.accel}/${req.builder}`, scale: frame.heatScale };
         }
         const now = performance.now();
@@ -212,6 +215,45 @@ export class Pane {
         this.drawOverlay();
         this.app.panesChanged();
         this.pump();
+    }
+
+    /**
+     * Asks for the frame's regions at once (null: the whole frame, scaled to
+     * the canvas) and draws each as it arrives. Resolves to the frame's totals:
+     * render ms and rays summed over the strips, the PNG of a whole frame.
+     */
+    async fetchFrame(req, regions, flight) {
+        const [W, H] = this.app.state.res;
+        const parts = await Promise.all(regions.map(async (region, i) => {
+            const body = region ? { ...req, region, stream: `${this.stream}/${i}` } : { ...req, stream: this.stream };
+            const part = await api.renderFrame(body, { signal: flight.controller.signal });
+            let bitmap;
+            try {
+                bitmap = await createImageBitmap(part.blob);
+            } catch (e) {
+                throw new api.ApiError('Decoding the frame', 200, '', e.message);
+            }
+            if (this.inflight !== flight) { bitmap.close(); return part; }
+            if (this.canvas.width !== W || this.canvas.height !== H) {
+                this.canvas.width = W;
+                this.canvas.height = H;
+            }
+            const ctx = this.canvas.getContext('2d');
+            ctx.imageSmoothingEnabled = true;
+            ctx.imageSmoothingQuality = flight.quick ? 'low' : 'high';
+            if (region) ctx.drawImage(bitmap, region.x, region.y);
+            else ctx.drawImage(bitmap, 0, 0, W, H);
+            bitmap.close();
+            return part;
+        }));
+        if (parts.length === 1) return parts[0];
+        const sum = (k) => parts.reduce((a, p) => (p[k] === null || a === null ? null : a + p[k]), 0);
+        const renderMs = sum('renderMs'), rays = sum('rays');
+        return {
+            blob: null, renderMs, rays, heatScale: null,
+            mrays: renderMs > 0 && rays !== null ? rays / renderMs / 1e3 : null,
+            timing: parts.map((p) => p.timing).join('; '),
+        };
     }
 
     showError(key, e) {
