@@ -298,6 +298,62 @@ def test_sigterm_during_bench_job_exits_fast():
 
 
 @test
+def test_port_0_picks_a_free_port_and_logs_it():
+    import re as _re
+    md = tempfile.mkdtemp(prefix="arbor-http-")
+    os.symlink(our("cornell.obj"), os.path.join(md, "cornell.obj"))
+    err = open(os.path.join(md, "stderr.log"), "wb")
+    p = subprocess.Popen([ARBORD, "serve", "--port", "0", "--models", md, "--threads", "1",
+                          "--web", os.path.join(harness.REPO, "web")], stderr=err, stdout=subprocess.DEVNULL)
+    try:
+        port = None
+        end = time.time() + 20
+        while port is None and time.time() < end and p.poll() is None:
+            with open(os.path.join(md, "stderr.log"), encoding="utf-8", errors="replace") as f:
+                m = _re.search(r"http://[0-9.]+:(\d+)", f.read())
+            if m:
+                port = int(m.group(1))
+            else:
+                time.sleep(0.05)
+        check(port and port != 0, "--port 0: no http://ADDR:PORT in the log: %r" %
+              open(os.path.join(md, "stderr.log"), errors="replace").read()[:500])
+        eq(harness.request(port, "GET", "/healthz").status, 200, "GET /healthz on the logged port %d" % port)
+        p.send_signal(signal.SIGTERM)
+        eq(p.wait(30), 0, "exit after SIGTERM")
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+        err.close()
+        for f in os.listdir(md):
+            os.unlink(os.path.join(md, f))
+        os.rmdir(md)
+
+
+@test
+def test_idle_connections_do_not_block_others():
+    """100 clients that connect and send nothing (or half a request) do not stop others being served,
+    nor the daemon exiting at SIGTERM."""
+    d = Daemon([our("cornell.obj")], ["--threads", "1"], name="idle-connections daemon")
+    socks = []
+    try:
+        for i in range(100):
+            s = socket.create_connection((d.host, d.port), timeout=5)
+            if i % 2:
+                s.sendall(b"POST /api/render HTTP/1.1\r\nHost: x\r\nContent-Length: 100\r\n\r\n{\"model\":")
+            socks.append(s)
+        t0 = time.time()
+        expect_ok(d.get("/healthz", timeout=10))
+        expect_ok(d.post("/api/render", {"model": "cornell", "width": 16, "height": 16}, timeout=10))
+        check(time.time() - t0 < 3, "answers took %.1f s with 100 idle connections open" % (time.time() - t0))
+        _sigterm_exits_fast(d, "with 100 idle connections open")
+    finally:
+        for s in socks:
+            s.close()
+        d.cleanup()
+
+
+@test
 def test_shared_daemons_exit_cleanly():
     """Every daemon the other tests shared: SIGTERM -> exit 0, no sanitizer report."""
     errs = []
