@@ -354,6 +354,33 @@ def test_idle_connections_do_not_block_others():
 
 
 @test
+def test_readyz_503_stopping_during_shutdown():
+    """On a connection kept alive from before SIGTERM, /readyz answers 503 {"status":"stopping"}."""
+    import http.client
+    d = Daemon([our("cornell.obj")], ["--threads", "1"], name="stopping daemon")
+    try:
+        c = http.client.HTTPConnection(d.host, d.port, timeout=10)
+        c.request("GET", "/readyz")
+        r = c.getresponse()
+        r.read()
+        eq(r.status, 200, "/readyz before SIGTERM")
+        d.proc.send_signal(signal.SIGTERM)
+        time.sleep(0.1)
+        try:
+            c.request("GET", "/readyz")
+            r = c.getresponse()
+            body = r.read()
+        except (OSError, http.client.HTTPException) as e:
+            harness.ignore("the kept-alive connection was closed before /readyz could be asked (%r)" % e)
+        eq(r.status, 503, "/readyz after SIGTERM (%r)" % body)
+        eq(json.loads(body), {"status": "stopping"}, "/readyz body after SIGTERM")
+        rc = d.proc.wait(30)
+        eq(rc, 0, "exit status")
+    finally:
+        d.cleanup()
+
+
+@test
 def test_shared_daemons_exit_cleanly():
     """Every daemon the other tests shared: SIGTERM -> exit 0, no sanitizer report."""
     errs = []
