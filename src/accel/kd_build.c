@@ -729,7 +729,8 @@ static void kd_buffer_append(kd_buffer *out, const kd_buffer *from)
             n.first += (uint32_t)first;
         out->nodes[base + i] = n;
     }
-    memcpy(out->index + first, from->index, from->nindex * sizeof *out->index);
+    if (from->nindex > 0) /* both lists may still be NULL */
+        memcpy(out->index + first, from->index, from->nindex * sizeof *out->index);
     out->nnodes += from->nnodes;
     out->nindex += from->nindex;
     kd_sums *s = &out->sums;

@@ -57,10 +57,13 @@ _Static_assert(sizeof(kd_node) == 8, "kd nodes are 8 bytes");
 static inline uint32_t kd_node_kind(kd_node n) { return n.flags & 3u; }
 static inline uint32_t kd_node_high(kd_node n) { return n.flags >> 2; }
 
-/* A leaf's triangles: its own one, or its run of tri_index. */
+/* A leaf's triangles: its own one, or its run of tri_index. An empty leaf
+ * has none, and no address: a tree whose leaves all hold at most one
+ * triangle has no tri_index at all (NULL, and NULL + 0 is undefined). */
 static inline const uint32_t *kd_leaf_tris(const kd_node *n, const uint32_t *tri_index)
 {
-    return kd_node_high(*n) == 1 ? &n->tri : tri_index + n->first;
+    uint32_t count = kd_node_high(*n);
+    return count == 1 ? &n->tri : count == 0 ? NULL : tri_index + n->first;
 }
 
 typedef struct {
