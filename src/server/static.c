@@ -19,6 +19,7 @@
 #include <unistd.h>
 
 #include "http.h"
+#include "static.h"
 
 static const struct {
     const char *ext, *type;
@@ -47,24 +48,31 @@ static const char *content_type(const char *path)
     return "application/octet-stream";
 }
 
-/* The real path of the file `path` names under the web folder, or false
- * when it names nothing there. */
-static bool resolve(const char *web_dir, const char *path, char *out)
+/* The real path of want in out, when it exists and lies in root. */
+static bool real_inside(const char *root, const char *want, char *out)
+{
+    if (realpath(want, out) == NULL)
+        return false;
+    size_t len = strlen(root);
+    return strncmp(out, root, len) == 0 && (out[len] == '/' || out[len] == '\0');
+}
+
+bool static_resolve(const char *web_dir, const char *path, char *out)
 {
     char root[PATH_MAX], want[PATH_MAX * 2];
     if (path[0] != '/' || strstr(path, "%00") != NULL || realpath(web_dir, root) == NULL)
         return false;
     int n = snprintf(want, sizeof want, "%s%s", root, path);
-    if (n < 0 || (size_t)n >= sizeof want || realpath(want, out) == NULL)
+    if (n < 0 || (size_t)n >= sizeof want || !real_inside(root, want, out))
         return false;
-    size_t len = strlen(root);
-    if (strncmp(out, root, len) != 0 || (out[len] != '/' && out[len] != '\0'))
-        return false;
+    /* A folder names its index.html, which may be a link too: it is
+     * resolved and checked like the name asked for (tests/fuzz/fuzz_static.c
+     * found an index.html linking out of the web folder being served). */
     struct stat st;
     if (stat(out, &st) == 0 && S_ISDIR(st.st_mode)) {
-        if (strlen(out) + sizeof "/index.html" > PATH_MAX)
+        n = snprintf(want, sizeof want, "%s/index.html", out);
+        if (n < 0 || (size_t)n >= sizeof want || !real_inside(root, want, out))
             return false;
-        strcat(out, "/index.html");
     }
     return true;
 }
@@ -74,7 +82,7 @@ void route_static(http_req *r, const char *path)
     char file[PATH_MAX];
     int fd = -1;
     struct stat st;
-    if (resolve(r->srv->config.web_dir, path, file))
+    if (static_resolve(r->srv->config.web_dir, path, file))
         fd = open(file, O_RDONLY | O_CLOEXEC);
     if (fd < 0 || fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
         if (fd >= 0)
@@ -93,7 +101,7 @@ void route_static(http_req *r, const char *path)
         struct MHD_Response *resp = MHD_create_response_from_fd((uint64_t)st.st_size, fd);
         if (resp == NULL) {
             close(fd);
-            http_reply_error(r, 500, "internal", "cannot send %s", path);
+            http_reply_error(r, 507, "insufficient_memory", "out of memory sending %s", path);
             return;
         }
         MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, content_type(file));
