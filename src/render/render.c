@@ -520,7 +520,7 @@ arbor_frame *arbor_render_submit(arbor_pool *pool, const arbor_accel *a, const a
     frame_setup(f);
     size_t pixels = (size_t)f->region.w * (size_t)f->region.h;
     f->rgb = calloc(pixels, 3);
-    f->tiles = calloc((size_t)(f->tiles_x * f->tiles_y), sizeof *f->tiles);
+    f->tiles = calloc((size_t)f->tiles_x * (size_t)f->tiles_y, sizeof *f->tiles);
     f->heat = p->mode == ARBOR_MODE_HEAT ? calloc(pixels, sizeof *f->heat) : NULL;
     if (f->rgb == NULL || f->tiles == NULL || (p->mode == ARBOR_MODE_HEAT && f->heat == NULL)) {
         frame_free(f);

@@ -43,7 +43,7 @@ static const field camera_fields[] = {
     {"up", F_VEC3, true, true},
 };
 
-#define COUNT(a) (sizeof a / sizeof a[0])
+#define COUNT(a) (sizeof(a) / sizeof((a)[0]))
 
 static const field *find_field(const field *list, size_t n, const char *name)
 {
