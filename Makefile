@@ -8,21 +8,41 @@
 #   make models     regenerate the procedural models in models/ (SIZE=large for big ones)
 #   make bench      the benchmark tables of docs/BENCH.md
 #   make bench-embree   the same with Intel Embree side by side
-#   make asan       build and test with AddressSanitizer + UBSan
+#   make test SAN=address,undefined   the same under sanitizers (also SAN=thread), in build/san-*
+#   make asan       alias of make test SAN=address,undefined
+#   make fuzz       the libFuzzer targets of tests/fuzz for FUZZ_SECONDS each (clang)
+#   make lint       cppcheck and clang-tidy on src/ (tests/lint)
 #
 # MARCH=-march=native by default; override with MARCH= for a portable build.
 
 CC      ?= cc
 MARCH   ?= -march=native
-OPT     ?= -O2
 CFLAGS  ?=
 SHARED  ?= $(abspath ../shared)
+
+# SAN=address,undefined or SAN=thread: everything (library, arbord, tests) is
+# built with those sanitizers in a folder of its own, build/san-address-undefined
+# or build/san-thread, and make test runs every suite against that arbord. Any
+# report fails the run: UBSan does not recover, and the runtimes halt on the
+# first error (SAN_ENV below; the suites also look for reports in the daemon's
+# stderr). Suppressions, each with its reason, would go in tests/san/.
+comma   := ,
+ifneq ($(SAN),)
+BUILD   ?= build/san-$(subst $(comma),-,$(SAN))
+OPT     ?= -O1 -g -fno-omit-frame-pointer
+SANFLAGS ?= -fsanitize=$(SAN) -fno-sanitize-recover=all
+endif
+OPT     ?= -O2
 BUILD   ?= build
+SANFLAGS ?=
+SAN_ENV = ASAN_OPTIONS=halt_on_error=1:detect_leaks=1:detect_stack_use_after_return=1:strict_string_checks=1 \
+          UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
+          TSAN_OPTIONS=halt_on_error=1:second_deadlock_stack=1
 
 # Embree is optional: compiled in when its header is installed (make bench-embree installs it).
 EMBREE  ?= $(shell test -f /usr/include/embree3/rtcore.h && echo 1)
 
-ARBOR_CFLAGS = -std=c11 -Wall -Wextra -Werror $(OPT) $(MARCH) -D_POSIX_C_SOURCE=200809L \
+ARBOR_CFLAGS = -std=c11 -Wall -Wextra -Werror $(OPT) $(SANFLAGS) $(MARCH) -D_POSIX_C_SOURCE=200809L \
                -Iinclude -MMD -MP -pthread $(CFLAGS)
 LDLIBS  = -lmicrohttpd -lcjson -lpng -lz -lpthread -lm
 ifeq ($(EMBREE),1)
@@ -39,7 +59,7 @@ TEST_BIN = $(TEST_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 UNITY    = build/deps/unity/src
 TEST_SUPPORT_OBJ = $(BUILD)/obj/tests/unit/support.o $(BUILD)/obj/unity.o
 
-.PHONY: all deps run test unit models bench bench-embree asan loadtest cluster clean
+.PHONY: all deps run test unit models bench bench-embree asan fuzz lint loadtest cluster clean
 # Keep intermediate objects: deleting them would also print "rm ..." after the
 # test summary, which must stay the last line of make test.
 .SECONDARY:
@@ -75,6 +95,31 @@ $(BUILD)/tests/%: $(BUILD)/obj/tests/unit/%.o $(TEST_SUPPORT_OBJ) $(BUILD)/libar
 	@mkdir -p $(dir $@)
 	$(CC) $(ARBOR_CFLAGS) -o $@ $^ $(LDLIBS)
 
+# The fuzz targets of tests/fuzz. Linked with replay.c they are test programs
+# that replay the target's committed corpus (every regression input) in every
+# build, gcc and sanitizers included; make fuzz builds them with clang as
+# libFuzzer fuzzers.
+FUZZ_TARGETS = obj ply render_request upload static trees
+FUZZ_REPLAY  = $(FUZZ_TARGETS:%=$(BUILD)/tests/fuzz_%)
+TEST_BIN    += $(FUZZ_REPLAY)
+
+$(BUILD)/obj/tests/fuzz/%.o: tests/fuzz/%.c | deps
+	@mkdir -p $(dir $@)
+	$(CC) $(ARBOR_CFLAGS) -c $< -o $@
+
+$(BUILD)/obj/tests/fuzz/replay_%.o: tests/fuzz/replay.c | deps
+	@mkdir -p $(dir $@)
+	$(CC) $(ARBOR_CFLAGS) -DFUZZ_CORPUS='"tests/fuzz/corpus/$*"' -c $< -o $@
+
+$(BUILD)/tests/fuzz_%: $(BUILD)/obj/tests/fuzz/fuzz_%.o $(BUILD)/obj/tests/fuzz/replay_%.o \
+                       $(BUILD)/obj/tests/fuzz/fuzz.o $(BUILD)/libarbor.a
+	@mkdir -p $(dir $@)
+	$(CC) $(ARBOR_CFLAGS) -o $@ $^ $(LDLIBS)
+
+$(BUILD)/fuzzers/fuzz_%: $(BUILD)/obj/tests/fuzz/fuzz_%.o $(BUILD)/obj/tests/fuzz/fuzz.o $(BUILD)/libarbor.a
+	@mkdir -p $(dir $@)
+	$(CC) $(ARBOR_CFLAGS) -fsanitize=fuzzer -o $@ $^ $(LDLIBS)
+
 unit: $(TEST_BIN)
 
 # Unity binaries, then the suites that drive the real binary: the CLI, the
@@ -83,7 +128,7 @@ unit: $(TEST_BIN)
 SUITES = tests/cli/run.sh tests/http/run.py tests/e2e/run.sh tests/cluster/run.py
 
 test: $(BUILD)/arbord $(TEST_BIN)
-	@ARBORD=$(abspath $(BUILD)/arbord) ARBOR_SHARED_MODELS=$(SHARED)/models tests/run.sh $(TEST_BIN) $(SUITES)
+	@$(SAN_ENV) ARBORD=$(abspath $(BUILD)/arbord) ARBOR_SHARED_MODELS=$(SHARED)/models tests/run.sh $(TEST_BIN) $(SUITES)
 
 # The daemon on the repository's models/ and web/ (PORT=8080 by default); Ctrl-C stops it.
 PORT ?= 8080
@@ -121,7 +166,24 @@ bench-embree:
 	SHARED=$(SHARED) scripts/bench.sh --embree
 
 asan:
-	$(MAKE) BUILD=build/asan OPT="-O1 -g -fsanitize=address,undefined -fno-omit-frame-pointer" test
+	@$(MAKE) --no-print-directory SAN=address,undefined test
+
+# libFuzzer (clang, installed by scripts/deps.sh --fuzz): every target of
+# FUZZ_TARGETS under ASan and UBSan in build/fuzz, FUZZ_SECONDS each, from
+# its seed corpus tests/fuzz/corpus/<target> (tests/fuzz/run.sh).
+FUZZ_SECONDS ?= 60
+fuzz:
+	@scripts/deps.sh --fuzz
+	@$(MAKE) --no-print-directory CC=clang BUILD=build/fuzz OPT="-O1 -g -fno-omit-frame-pointer" \
+	    SANFLAGS="-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all" \
+	    $(FUZZ_TARGETS:%=build/fuzz/fuzzers/fuzz_%)
+	@tests/fuzz/run.sh $(FUZZ_SECONDS) build/fuzz $(FUZZ_TARGETS)
+
+# cppcheck and clang-tidy on src/ (installed by scripts/deps.sh --lint); the
+# checks and why are in tests/lint/run.sh and .clang-tidy.
+lint:
+	@scripts/deps.sh --lint
+	@tests/lint/run.sh
 
 clean:
 	rm -rf $(BUILD)/obj $(BUILD)/tests $(BUILD)/arbord $(BUILD)/libarbor.a

@@ -7,6 +7,8 @@
 #
 #   scripts/deps.sh            build + test dependencies
 #   scripts/deps.sh --embree   also Intel Embree, the benchmark peer
+#   scripts/deps.sh --fuzz     also clang and its libFuzzer runtime (make fuzz)
+#   scripts/deps.sh --lint     also cppcheck and clang-tidy (make lint)
 #
 # Sourced (. scripts/deps.sh) it only defines its functions, for the tests.
 
@@ -69,14 +71,14 @@ main() {
     # build, then the HTTP tests (python3, prometheus client, curl) and load tests (wrk)
     pkgs=(build-essential pkg-config libmicrohttpd-dev libcjson-dev libpng-dev zlib1g-dev
           python3 python3-prometheus-client curl wrk)
-    want_embree=0
     for arg in "$@"; do
         case "$arg" in
-            --embree) want_embree=1 ;;
-            *) echo "deps.sh: unknown option '$arg' (use --embree)" >&2; exit 2 ;;
+            --embree) pkgs+=(libembree-dev) ;;
+            --fuzz) pkgs+=(clang libclang-rt-14-dev) ;;
+            --lint) pkgs+=(cppcheck clang-tidy) ;;
+            *) echo "deps.sh: unknown option '$arg' (use --embree, --fuzz or --lint)" >&2; exit 2 ;;
         esac
     done
-    [ "$want_embree" = 1 ] && pkgs+=(libembree-dev)
 
     missing=()
     for p in "${pkgs[@]}"; do

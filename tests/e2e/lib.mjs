@@ -84,6 +84,9 @@ export async function startDaemon({ shared = [], extraArgs = [] } = {}) {
                 if (!exited) proc.kill('SIGKILL');
             }
             fs.rmSync(tmp, { recursive: true, force: true });
+            // A sanitizer build (make test SAN=...) reports on stderr: the test fails.
+            const report = log.search(/(ERROR|WARNING): \w+Sanitizer|runtime error:/);
+            if (report >= 0) throw new Error(`arbord sanitizer report:\n${log.slice(Math.max(0, report - 200), report + 3000)}`);
         },
     };
 }
