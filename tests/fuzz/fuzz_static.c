@@ -22,7 +22,7 @@
 #include "fuzz.h"
 #include "../../src/server/static.h"
 
-static char web[PATH_MAX], web_real[PATH_MAX];
+static char web[256], web_real[PATH_MAX];
 
 static void link_or_die(const char *target, const char *name)
 {
