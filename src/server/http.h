@@ -36,6 +36,7 @@ struct arbor_server {
     arbor_store *store;
     arbor_pool *pool;
     struct MHD_Daemon *mhd;
+    struct MHD_Response *oom;       /* 507, made at start: the answer when no other can be made */
     int port;
     bool loopback;                  /* bound to a loopback address */
     double start_ms;
@@ -85,6 +86,18 @@ struct http_req {
     bool redispatch;                 /* resumed to run its route again (sync.c loaded its model) */
     uint8_t sync_rounds;             /* models loaded for it so far (sync.c) */
 };
+
+/* ---- JSON (server.c) ----
+ * cJSON's AddItemToObject and AddItemToArray leave the item to the caller
+ * when it cannot be added (no memory for the key, or no parent because
+ * making the parent failed); these free it. Every cJSON allocation that
+ * fails also marks the thread, as SQLite's mallocFailed does, so that an
+ * answer missing a part is never sent: http_reply_json answers 507 instead
+ * (and clears the mark). */
+void json_put(cJSON *object, const char *key, cJSON *item);
+void json_push(cJSON *array, cJSON *item);
+/* Whether a cJSON allocation failed on this thread since the last reply. */
+bool json_failed(void);
 
 /* ---- replies (server.c) ---- */
 /* Stores a JSON answer (takes ownership of body). */

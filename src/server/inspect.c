@@ -34,8 +34,8 @@ static cJSON *box_json(arbor_aabb b)
 {
     const float lo[3] = {b.lo.x, b.lo.y, b.lo.z}, hi[3] = {b.hi.x, b.hi.y, b.hi.z};
     cJSON *o = cJSON_CreateObject();
-    cJSON_AddItemToObject(o, "min", cJSON_CreateFloatArray(lo, 3));
-    cJSON_AddItemToObject(o, "max", cJSON_CreateFloatArray(hi, 3));
+    json_put(o, "min", cJSON_CreateFloatArray(lo, 3));
+    json_put(o, "max", cJSON_CreateFloatArray(hi, 3));
     return o;
 }
 
@@ -51,7 +51,7 @@ static cJSON *node_json(const arbor_node_info *n, bool step)
 {
     cJSON *o = step ? cJSON_CreateObject() : box_json(n->box);
     if (step)
-        cJSON_AddItemToObject(o, "box", box_json(n->box));
+        json_put(o, "box", box_json(n->box));
     cJSON_AddNumberToObject(o, "depth", n->depth);
     cJSON_AddBoolToObject(o, "leaf", n->leaf);
     if (step)
@@ -81,7 +81,7 @@ static bool on_node(void *user, const arbor_node_info *n)
         w->truncated = true;
         return false;
     }
-    cJSON_AddItemToArray(w->boxes, node_json(n, false));
+    json_push(w->boxes, node_json(n, false));
     w->count++;
     return true;
 }
@@ -95,7 +95,7 @@ static void answer_boxes(const inspect_req *q, const arbor_accel *a)
     cJSON_AddNumberToObject(o, "count", w.count);
     cJSON_AddBoolToObject(o, "truncated", w.truncated);
     cJSON_AddNumberToObject(o, "max_boxes", BOXES_MAX);
-    cJSON_AddItemToObject(o, "boxes", w.boxes);
+    json_put(o, "boxes", w.boxes);
     http_reply_json(q->http, 200, o);
 }
 
@@ -114,7 +114,7 @@ static bool on_step(void *user, const arbor_node_info *n)
         w->truncated = true;
         return true; /* keep tracing: the counts must stay whole */
     }
-    cJSON_AddItemToArray(w->steps, node_json(n, true));
+    json_push(w->steps, node_json(n, true));
     w->count++;
     return true;
 }
@@ -131,17 +131,17 @@ static void answer_ray(const inspect_req *q, const arbor_accel *a)
 
     cJSON *o = cJSON_CreateObject();
     cJSON *r = cJSON_AddObjectToObject(o, "ray");
-    cJSON_AddItemToObject(r, "origin", vec_json(ray.o));
-    cJSON_AddItemToObject(r, "dir", vec_json(ray.d));
+    json_put(r, "origin", vec_json(ray.o));
+    json_put(r, "dir", vec_json(ray.d));
     cJSON_AddNumberToObject(o, "x", q->spec.x);
     cJSON_AddNumberToObject(o, "y", q->spec.y);
     if (found) {
         cJSON *h = cJSON_AddObjectToObject(o, "hit");
         cJSON_AddNumberToObject(h, "t", hit.t);
         cJSON_AddNumberToObject(h, "triangle", hit.tri);
-        cJSON_AddItemToObject(h, "point", vec_json(vec3_add(ray.o, vec3_scale(ray.d, hit.t))));
+        json_put(h, "point", vec_json(vec3_add(ray.o, vec3_scale(ray.d, hit.t))));
         const arbor_mesh *m = arbor_accel_mesh(a);
-        cJSON_AddItemToObject(h, "normal", vec_json(vec3_normalize(arbor_mesh_tri_normal(m, hit.tri))));
+        json_put(h, "normal", vec_json(vec3_normalize(arbor_mesh_tri_normal(m, hit.tri))));
     } else {
         cJSON_AddNullToObject(o, "hit");
     }
@@ -149,7 +149,7 @@ static void answer_ray(const inspect_req *q, const arbor_accel *a)
     cJSON_AddNumberToObject(cnt, "nodes", (double)counts.nodes);
     cJSON_AddNumberToObject(cnt, "tris", (double)counts.tris);
     cJSON_AddBoolToObject(o, "truncated", w.truncated);
-    cJSON_AddItemToObject(o, "steps", w.steps);
+    json_put(o, "steps", w.steps);
     http_reply_json(q->http, 200, o);
 }
 

@@ -221,7 +221,7 @@ static cJSON *job_json(const job *j, double now)
     cJSON *rows = cJSON_AddArrayToObject(o, "rows");
     bool ratios = j->opts.embree && j->state == JOB_DONE;
     for (size_t i = 0; i < j->done; i++)
-        cJSON_AddItemToArray(rows, arbor_report_bench_row(&j->rows[i], ratios));
+        json_push(rows, arbor_report_bench_row(&j->rows[i], ratios));
     if (j->error[0] != '\0')
         cJSON_AddStringToObject(o, "error", j->error);
     else

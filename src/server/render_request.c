@@ -358,7 +358,11 @@ bool render_query_add(cJSON *obj, const char *key, const char *value, arbor_err 
     cJSON *v = query_value(f->type, key, value, e);
     if (v == NULL)
         return false;
-    cJSON_AddItemToObject(into, key, v);
+    if (!cJSON_AddItemToObject(into, key, v)) {
+        /* cJSON leaves an item it could not add to the caller. */
+        cJSON_Delete(v);
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory reading %s", key);
+    }
     return true;
 }
 

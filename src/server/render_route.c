@@ -163,11 +163,11 @@ static void reply_frame_json(render_req *rr, const arbor_frame_result *res, doub
     cJSON_AddNumberToObject(o, "queue_ms", queue_ms);
     cJSON_AddNumberToObject(o, "build_ms", rr->tree_ms - rr->admitted_ms);
     bool heat = sp->mode == ARBOR_MODE_HEAT;
-    cJSON_AddItemToObject(o, "heat_scale", heat ? cJSON_CreateNumber(res->heat_scale) : cJSON_CreateNull());
-    cJSON_AddItemToObject(o, "heat_max", heat ? cJSON_CreateNumber(res->heat_max) : cJSON_CreateNull());
-    cJSON_AddItemToObject(o, "heat_mean", heat ? cJSON_CreateNumber(res->heat_mean) : cJSON_CreateNull());
-    cJSON_AddItemToObject(o, "mean_nodes", res->counted ? cJSON_CreateNumber(res->mean_nodes) : cJSON_CreateNull());
-    cJSON_AddItemToObject(o, "mean_tris", res->counted ? cJSON_CreateNumber(res->mean_tris) : cJSON_CreateNull());
+    json_put(o, "heat_scale", heat ? cJSON_CreateNumber(res->heat_scale) : cJSON_CreateNull());
+    json_put(o, "heat_max", heat ? cJSON_CreateNumber(res->heat_max) : cJSON_CreateNull());
+    json_put(o, "heat_mean", heat ? cJSON_CreateNumber(res->heat_mean) : cJSON_CreateNull());
+    json_put(o, "mean_nodes", res->counted ? cJSON_CreateNumber(res->mean_nodes) : cJSON_CreateNull());
+    json_put(o, "mean_tris", res->counted ? cJSON_CreateNumber(res->mean_tris) : cJSON_CreateNull());
     http_reply_json(rr->http, 200, o);
 }
 

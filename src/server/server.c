@@ -28,7 +28,42 @@
 #define REAPER_PERIOD_MS 100
 #define DRAIN_MS 3000
 
+/* ---- JSON ---- */
+
+static _Thread_local bool json_oom;
+
+static void *json_malloc(size_t n)
+{
+    void *p = malloc(n);
+    if (p == NULL)
+        json_oom = true;
+    return p;
+}
+
+bool json_failed(void)
+{
+    return json_oom;
+}
+
+void json_put(cJSON *object, const char *key, cJSON *item)
+{
+    if (!cJSON_AddItemToObject(object, key, item)) {
+        json_oom = true;
+        cJSON_Delete(item);
+    }
+}
+
+void json_push(cJSON *array, cJSON *item)
+{
+    if (!cJSON_AddItemToArray(array, item)) {
+        json_oom = true;
+        cJSON_Delete(item);
+    }
+}
+
 /* ---- replies ---- */
+
+#define OOM_BODY "{\"error\":{\"code\":\"insufficient_memory\",\"message\":\"out of memory\"}}\n"
 
 static void reply_response(http_req *r, unsigned status, struct MHD_Response *resp, size_t bytes)
 {
@@ -43,26 +78,26 @@ void http_reply_buffer(http_req *r, unsigned status, const char *content_type, v
 {
     struct MHD_Response *resp = MHD_create_response_from_buffer(len, data, MHD_RESPMEM_MUST_FREE);
     if (resp == NULL) {
+        /* No response: queue_reply sends the server's 507. */
         free(data);
-        resp = MHD_create_response_from_buffer(0, (void *)"", MHD_RESPMEM_PERSISTENT);
-        status = MHD_HTTP_INTERNAL_SERVER_ERROR;
+        reply_response(r, MHD_HTTP_INSUFFICIENT_STORAGE, NULL, sizeof OOM_BODY - 1);
+        return;
     }
-    if (resp != NULL)
-        MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, content_type);
+    MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, content_type);
     reply_response(r, status, resp, len);
 }
 
 void http_reply_json(http_req *r, unsigned status, cJSON *body)
 {
-    char *text = body != NULL ? cJSON_PrintUnformatted(body) : NULL;
+    char *text = body != NULL && !json_oom ? cJSON_PrintUnformatted(body) : NULL;
     cJSON_Delete(body);
-    if (text == NULL) {
-        static const char oom[] = "{\"error\":{\"code\":\"internal\",\"message\":\"out of memory\"}}";
-        struct MHD_Response *resp =
-            MHD_create_response_from_buffer(sizeof oom - 1, (void *)oom, MHD_RESPMEM_PERSISTENT);
-        if (resp != NULL)
-            MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, "application/json");
-        reply_response(r, MHD_HTTP_INTERNAL_SERVER_ERROR, resp, sizeof oom - 1);
+    bool failed = json_oom;
+    json_oom = false;
+    if (text == NULL || failed) {
+        free(text);
+        /* Out of memory making the body (or the body's JSON was never
+         * built, for the same reason): the server's 507. */
+        reply_response(r, MHD_HTTP_INSUFFICIENT_STORAGE, NULL, sizeof OOM_BODY - 1);
         return;
     }
     size_t len = strlen(text);
@@ -288,7 +323,7 @@ static void route_readyz(http_req *r)
     if (!s->stopping && !ready) {
         cJSON *p = cJSON_AddArrayToObject(o, "pending");
         for (uint32_t i = 0; i < s->npending; i++)
-            cJSON_AddItemToArray(p, cJSON_CreateString(s->pending[i]));
+            json_push(p, cJSON_CreateString(s->pending[i]));
     }
     pthread_mutex_unlock(&s->lock);
     http_reply_json(r, ready ? 200 : 503, o);
@@ -310,7 +345,7 @@ static void route_metrics(http_req *r)
     size_t len = 0;
     char *text = metrics_expose(&s->metrics, &g, &len);
     if (text == NULL) {
-        http_reply_error(r, 500, "internal", "out of memory writing the metrics");
+        http_reply_error(r, 507, "insufficient_memory", "out of memory writing the metrics");
         return;
     }
     http_reply_buffer(r, 200, "text/plain; version=0.0.4; charset=utf-8", text, len);
@@ -384,7 +419,7 @@ static void list_models(http_req *r)
     uint32_t n = arbor_store_list_models(r->srv->store, &models);
     cJSON *o = cJSON_CreateObject(), *a = cJSON_AddArrayToObject(o, "models");
     for (uint32_t i = 0; i < n; i++) {
-        cJSON_AddItemToArray(a, model_json(r->srv, models[i]));
+        json_push(a, model_json(r->srv, models[i]));
         arbor_model_release(models[i]);
     }
     free(models);
@@ -457,6 +492,7 @@ static void log_request(const arbor_server *s, const http_req *r, double ms)
             fprintf(stderr, "%s\n", line);
         free(line);
         cJSON_Delete(o);
+        json_oom = false; /* the log's own failure; no answer is missing a part */
     } else {
         fprintf(stderr, "%s %s %s %s %u %" PRIu64 "B %.1fms\n", when, r->id, r->method, r->url ? r->url : "",
                 r->status, r->bytes, ms);
@@ -472,11 +508,16 @@ static void *on_uri(void *cls, const char *uri, struct MHD_Connection *conn)
     (void)conn;
     arbor_server *s = cls;
     http_req *r = calloc(1, sizeof *r);
-    if (r == NULL)
+    char *url = strdup(uri);
+    if (r == NULL || url == NULL) {
+        /* on_request answers a request without a record with the 507. */
+        free(r);
+        free(url);
         return NULL;
+    }
     r->srv = s;
     atomic_init(&r->refs, 1);
-    r->url = strdup(uri);
+    r->url = url;
     r->start_ms = arbor_now_ms();
     pthread_mutex_lock(&s->lock);
     uint64_t id = ++s->next_request_id;
@@ -505,10 +546,13 @@ static void on_completed(void *cls, struct MHD_Connection *conn, void **con_cls,
 
 static enum MHD_Result queue_reply(http_req *r)
 {
-    if (r->response == NULL)
+    if (r->response == NULL && r->status == 0)
         http_reply_error(r, 500, "internal", "no answer was made");
-    if (r->response == NULL)
-        return MHD_NO;
+    if (r->response == NULL) {
+        /* The answer could not be made for want of memory. */
+        r->status = MHD_HTTP_INSUFFICIENT_STORAGE;
+        return MHD_queue_response(r->conn, r->status, r->srv->oom);
+    }
     MHD_add_response_header(r->response, "X-Request-Id", r->id);
     /* While stopping, connections close after their answer, so that the
      * daemon can wait for every answer to leave before it stops. */
@@ -578,13 +622,16 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
                                   const char *version, const char *upload_data, size_t *upload_data_size,
                                   void **con_cls)
 {
-    (void)cls;
     (void)version;
     http_req *r = *con_cls;
-    if (r == NULL)
-        return MHD_NO;
+    if (r == NULL) {
+        /* on_uri had no memory for the request's record. */
+        arbor_server *s = cls;
+        return MHD_queue_response(conn, MHD_HTTP_INSUFFICIENT_STORAGE, s->oom);
+    }
     if (r->conn == NULL) {
         r->conn = conn;
+        json_oom = false; /* a mark left by what came before is not this request's */
         if (!on_headers(r, method))
             return queue_reply(r);
         return MHD_YES;
@@ -762,9 +809,15 @@ arbor_server *arbor_server_start(const arbor_server_config *c, arbor_store *stor
     pthread_mutex_init(&s->lock, NULL);
     pthread_cond_init(&s->idle, NULL);
     pthread_cond_init(&s->reaper_wake, NULL);
+    /* cJSON allocates through json_malloc, which notes failures (see http.h). */
+    cJSON_Hooks hooks = {json_malloc, free};
+    cJSON_InitHooks(&hooks);
     s->jobs = jobs_create(pool);
+    s->oom = MHD_create_response_from_buffer(sizeof OOM_BODY - 1, (void *)OOM_BODY, MHD_RESPMEM_PERSISTENT);
+    if (s->oom != NULL)
+        MHD_add_response_header(s->oom, MHD_HTTP_HEADER_CONTENT_TYPE, "application/json");
     arbor_store_on_build(store, on_build, s);
-    bool ok = (c->token == NULL || s->token != NULL) && s->jobs != NULL;
+    bool ok = (c->token == NULL || s->token != NULL) && s->jobs != NULL && s->oom != NULL;
     if (!ok)
         arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory starting the server");
     if (ok)
@@ -835,6 +888,8 @@ void arbor_server_stop(arbor_server *s)
     drain(s);
     if (s->mhd != NULL)
         MHD_stop_daemon(s->mhd);
+    if (s->oom != NULL)
+        MHD_destroy_response(s->oom);
     jobs_destroy(s->jobs);
     for (uint32_t i = 0; i < s->npending; i++)
         free(s->pending[i]);

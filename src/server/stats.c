@@ -41,8 +41,8 @@ static cJSON *tree_json(arbor_server *s, arbor_model *m, arbor_accel_kind k, arb
     cJSON_AddStringToObject(t, "builder", arbor_builder_name(b));
     cJSON_AddStringToObject(t, "state", arbor_tree_state_name(info.state));
     bool ready = info.state == ARBOR_TREE_READY;
-    cJSON_AddItemToObject(t, "build_ms", ready ? cJSON_CreateNumber(info.stats.build_ms) : cJSON_CreateNull());
-    cJSON_AddItemToObject(t, "bytes", ready ? cJSON_CreateNumber((double)info.stats.bytes) : cJSON_CreateNull());
+    json_put(t, "build_ms", ready ? cJSON_CreateNumber(info.stats.build_ms) : cJSON_CreateNull());
+    json_put(t, "bytes", ready ? cJSON_CreateNumber((double)info.stats.bytes) : cJSON_CreateNull());
     if (info.state == ARBOR_TREE_FAILED)
         cJSON_AddStringToObject(t, "error", info.error);
     return t;
@@ -57,20 +57,20 @@ cJSON *model_json(arbor_server *s, arbor_model *m)
     cJSON_AddNumberToObject(o, "triangles", mesh->ntris);
     cJSON_AddNumberToObject(o, "vertices", mesh->nverts);
     cJSON *bounds = cJSON_AddObjectToObject(o, "bounds");
-    cJSON_AddItemToObject(bounds, "min", vec3_json(mesh->bounds.lo));
-    cJSON_AddItemToObject(bounds, "max", vec3_json(mesh->bounds.hi));
+    json_put(bounds, "min", vec3_json(mesh->bounds.lo));
+    json_put(bounds, "max", vec3_json(mesh->bounds.hi));
     cJSON *mats = cJSON_AddArrayToObject(o, "materials");
     for (uint32_t i = 0; i < mesh->nmats; i++)
-        cJSON_AddItemToArray(mats, cJSON_CreateString(mesh->mats[i].name));
+        json_push(mats, cJSON_CreateString(mesh->mats[i].name));
     cJSON *warnings = cJSON_AddArrayToObject(o, "warnings");
     for (uint32_t i = 0; i < mesh->nwarnings; i++)
-        cJSON_AddItemToArray(warnings, cJSON_CreateString(mesh->warnings[i]));
+        json_push(warnings, cJSON_CreateString(mesh->warnings[i]));
     cJSON_AddNumberToObject(o, "bytes", (double)arbor_model_bytes(m));
     cJSON_AddNumberToObject(o, "version", (double)arbor_model_version(m));
     cJSON *trees = cJSON_AddArrayToObject(o, "trees");
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
         for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
-            cJSON_AddItemToArray(trees, tree_json(s, m, (arbor_accel_kind)k, (arbor_builder)b));
+            json_push(trees, tree_json(s, m, (arbor_accel_kind)k, (arbor_builder)b));
     return o;
 }
 
@@ -100,8 +100,8 @@ static void reply_tree(http_req *r, arbor_tree *tree, const tree_wait *w)
         return;
     }
     cJSON *o = cJSON_CreateObject();
-    cJSON_AddItemToObject(o, "daemon", daemon_json(r->srv));
-    cJSON_AddItemToArray(cJSON_AddArrayToObject(o, "trees"), stats);
+    json_put(o, "daemon", daemon_json(r->srv));
+    json_push(cJSON_AddArrayToObject(o, "trees"), stats);
     http_reply_json(r, 200, o);
 }
 
@@ -245,7 +245,7 @@ static void add_ready_trees(arbor_server *s, arbor_model *m, cJSON *trees)
             arbor_tree_info info;
             arbor_model_tree_info(s->store, m, (arbor_accel_kind)k, (arbor_builder)b, &info);
             if (info.state == ARBOR_TREE_READY)
-                cJSON_AddItemToArray(trees, stats_json(m, (arbor_accel_kind)k, (arbor_builder)b, &info.stats));
+                json_push(trees, stats_json(m, (arbor_accel_kind)k, (arbor_builder)b, &info.stats));
         }
 }
 
@@ -267,7 +267,7 @@ void route_stats(http_req *r)
         return;
     }
     cJSON *o = cJSON_CreateObject();
-    cJSON_AddItemToObject(o, "daemon", daemon_json(s));
+    json_put(o, "daemon", daemon_json(s));
     cJSON *trees = cJSON_AddArrayToObject(o, "trees");
     if (one != NULL) {
         add_ready_trees(s, one, trees);
