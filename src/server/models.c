@@ -221,8 +221,14 @@ static bool sniff_model(http_req *r, const char *path, uint64_t max, bool *ply, 
         }
         total += (uint64_t)got;
     }
+    int zerr = Z_OK;
+    gzerror(g, &zerr);
     bool broken = got < 0;
     gzclose(g);
+    if (broken && zerr == Z_MEM_ERROR) {
+        http_reply_error(r, 507, "insufficient_memory", "out of memory reading the upload");
+        return false;
+    }
     if (broken) {
         http_reply_error(r, 400, "bad_request", "the upload is not valid gzip data");
         return false;
@@ -360,7 +366,10 @@ static void upload_run(void *ctx, uint32_t task)
     unsigned flags = ARBOR_ADD_UPLOADED | (j->replace ? ARBOR_ADD_REPLACE : 0);
     if (!arbor_load_model_capped(j->path, s->config.max_upload, &mesh, &err)) {
         strip_dir(err.msg, r->parts->dir);
-        http_reply_error(r, 400, "bad_request", "%s", err.msg);
+        if (err.status == ARBOR_ERR_NOMEM)
+            http_reply_err(r, &err);
+        else
+            http_reply_error(r, 400, "bad_request", "%s", err.msg);
     } else if (!save_upload(r->parts, s->config.upload_dir, j->name, file, sizeof file, why, sizeof why)) {
         http_reply_error(r, 507, "insufficient_storage", "%s", why);
     } else if ((stamp = arbor_file_stamp(file)) == 0) { /* taken at once: what sync.c compares */
