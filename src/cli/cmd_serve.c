@@ -56,6 +56,9 @@ static void usage(FILE *out)
             "  --max-upload BYTES   largest model upload, also its decompressed size (default 256M)\n"
             "  --max-memory BYTES   memory for models and trees (default: half the physical memory)\n"
             "  --frame-timeout S    cancel frames rendering longer (default 60; 0 = never)\n"
+            "  --connection-timeout S  close a connection idle or stalled this long (default 30)\n"
+            "  --max-connections N  open connections at most; more are refused (default 1000)\n"
+            "  --max-per-ip N       open connections from one address at most (default 512)\n"
             "  --token-file FILE    require 'Authorization: Bearer <first line>' for changes\n"
             "  --log text|json      access log format on stderr (default text)\n"
             "Sizes take K, M or G (powers of 1024).\n");
@@ -137,6 +140,7 @@ static int parse_args(int argc, char **argv, serve_args *a)
         static const char *const valued[] = {"--bind", "--port", "--models", "--threads", "--queue",
                                              "--prebuild", "--web", "--max-pixels", "--max-body",
                                              "--max-upload", "--max-memory", "--frame-timeout",
+                                             "--connection-timeout", "--max-connections", "--max-per-ip",
                                              "--token-file", "--log"};
         bool known = false;
         for (size_t k = 0; k < sizeof valued / sizeof valued[0]; k++)
@@ -159,6 +163,9 @@ static int parse_args(int argc, char **argv, serve_args *a)
         else if (strcmp(o, "--max-body") == 0) ok = parse_size(o, v, 1, &c->max_body);
         else if (strcmp(o, "--max-upload") == 0) ok = parse_size(o, v, 1, &c->max_upload);
         else if (strcmp(o, "--max-memory") == 0) ok = parse_size(o, v, MIB, &a->max_memory);
+        else if (strcmp(o, "--connection-timeout") == 0) ok = cli_int(cmd, o, v, 1, 86400, &c->connection_timeout_s);
+        else if (strcmp(o, "--max-connections") == 0) ok = cli_int(cmd, o, v, 1, 1000000, &c->connection_limit);
+        else if (strcmp(o, "--max-per-ip") == 0) ok = cli_int(cmd, o, v, 1, 1000000, &c->per_ip_limit);
         else if (strcmp(o, "--frame-timeout") == 0) {
             float s;
             ok = cli_float(cmd, o, v, 0, 86400, &s);
