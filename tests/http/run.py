@@ -1,11 +1,11 @@
 #!/usr/bin/python3
 """arbord's HTTP tests: the daemon started on free ports and driven over real HTTP.
 
-    tests/http/run.py [-k SUBSTRING]... [--list]
+    tests/http/run.py [-k SUBSTRING]... [-v] [--list]
 
 Env: ARBORD (the binary, default build/arbord), ARBOR_SHARED_MODELS (default ../shared/models),
-HTTP_TESTS_VERBOSE=1 (say what runs). Prints Unity's lines: file:line:test:PASS|FAIL|IGNORE,
-and last "N Tests M Failures K Ignored"; exit status 1 on any failure.
+HTTP_TESTS_VERBOSE=1 (say what runs). Prints Unity's lines: file:line:test:FAIL|IGNORE (and PASS
+on a terminal or with -v), and last "N Tests M Failures K Ignored"; exit status 1 on any failure.
 """
 import os
 import signal
@@ -57,6 +57,9 @@ def one_line(s):
 def main(argv):
     filters = []
     listing = False
+    # PASS lines on a terminal or with -v; under tests/run.sh only FAIL/IGNORE lines and the
+    # summary (its grep for "error" would otherwise list every test_error_* that passed)
+    show_pass = sys.stdout.isatty() or bool(os.environ.get("HTTP_TESTS_VERBOSE"))
     i = 0
     while i < len(argv):
         if argv[i] == "-k" and i + 1 < len(argv):
@@ -65,8 +68,11 @@ def main(argv):
         elif argv[i] == "--list":
             listing = True
             i += 1
+        elif argv[i] == "-v":
+            show_pass = True
+            i += 1
         else:
-            print("usage: run.py [-k SUBSTRING]... [--list]", file=sys.stderr)
+            print("usage: run.py [-k SUBSTRING]... [-v] [--list]", file=sys.stderr)
             return 2
     for m in MODULES:
         __import__(m)
@@ -106,7 +112,8 @@ def main(argv):
                 signal.alarm(0)
                 if harness.SANITIZER_REPORTS:
                     raise Fail("sanitizer report: " + harness.SANITIZER_REPORTS.pop())
-                print("%s:%d:%s:PASS (%.1fs)" % (rel(filename), line, name, time.time() - t0), flush=True)
+                if show_pass:
+                    print("%s:%d:%s:PASS (%.1fs)" % (rel(filename), line, name, time.time() - t0), flush=True)
             except Ignore as e:
                 signal.alarm(0)
                 ignored += 1
