@@ -295,3 +295,12 @@ def test_upload_mtllib_cannot_lead_outside():
             continue
         n = _magenta_pixels(d, "mtl-out-%d" % i)
         check(n == 0, "mtllib %s: the .mtl outside the models folder was read (%d magenta pixels)" % (lib, n))
+
+
+@test
+def test_upload_multipart_over_max_upload_413():
+    d = limits_daemon()   # --max-upload 64K
+    obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" + b"f 1 2 3\n" * 10000
+    body, ctype = multipart([("model", "big.obj", "model/obj", obj)])
+    expect_error(d.req("POST", "/api/models/bigmp", body=body, headers={"Content-Type": ctype}), 413, "too_large")
+    expect_error(d.get("/api/models/bigmp"), 404, "not_found")

@@ -138,3 +138,17 @@ def test_non_loopback_bind_with_token():
         d.stop_clean()
     finally:
         d.cleanup()
+
+
+@test
+def test_wildcard_bind_without_token_403():
+    """--bind 0.0.0.0 listens on every address, non-loopback ones included: state changes get 403,
+    even from a client on 127.0.0.1."""
+    d = Daemon([our("cornell.obj")], ["--threads", "1"], bind="0.0.0.0", copy=True, name="0.0.0.0 daemon")
+    try:
+        expect_error(d.req("PUT", "/api/models/wild", body=OBJ), 403, "forbidden")
+        expect_error(d.req("DELETE", "/api/models/cornell"), 403, "forbidden")
+        expect_ok(d.post("/api/render", {"model": "cornell", "width": 16, "height": 16}))
+        d.stop_clean()
+    finally:
+        d.cleanup()
