@@ -21,7 +21,7 @@ import harness  # noqa: E402
 from harness import Fail, Ignore  # noqa: E402
 
 MODULES = ["test_endpoints", "test_errors", "test_static", "test_models", "test_concurrency",
-           "test_memory", "test_security", "test_bench", "test_lifecycle"]
+           "test_memory", "test_security", "test_bench", "test_lifecycle", "test_abuse"]
 PER_TEST_LIMIT = int(os.environ.get("HTTP_TEST_LIMIT", "150"))
 
 

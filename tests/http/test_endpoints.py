@@ -51,7 +51,7 @@ def test_readyz_503_while_prebuilding_then_200():
         health = d.get("/healthz")
         eq(health.status, 200, "GET /healthz while loading")
         if first.status == 200:
-            ignore("the daemon was ready before the first /readyz (%s, --prebuild %s)" % (model, prebuild))
+            ignore("the daemon was ready before the first /readyz (%s, --prebuild %s)" % (os.path.basename(model), prebuild))
         j = expect_json(first, 503)
         eq(j.get("status"), "loading", "GET /readyz while loading: status")
         check(isinstance(j.get("pending"), list), "GET /readyz while loading: no pending list: %r" % j)
