@@ -57,7 +57,7 @@ static void usage(FILE *out)
             "  --max-memory BYTES   memory for models and trees (default: half the physical memory)\n"
             "  --frame-timeout S    cancel frames rendering longer (default 60; 0 = never)\n"
             "  --connection-timeout S  close a connection idle or stalled this long (default 30)\n"
-            "  --max-connections N  open connections at most; more are refused (default 1000)\n"
+            "  --max-connections N  open connections at most; more wait to be accepted (default 1000)\n"
             "  --max-per-ip N       open connections from one address at most (default 512)\n"
             "  --token-file FILE    require 'Authorization: Bearer <first line>' for changes\n"
             "  --log text|json      access log format on stderr (default text)\n"
@@ -83,28 +83,34 @@ static bool parse_size(const char *opt, const char *s, uint64_t lo, uint64_t *ou
     return true;
 }
 
-/* The folder beside the executable's build folder: <repo>/NAME for
- * <repo>/build/arbord, so `make run` serves the repository's models/ and
- * web/ wherever the checkout is. */
+/* The repository's folder NAME for an arbord built anywhere inside it
+ * (build/arbord, build/san-thread/arbord, ...): the nearest folder above
+ * the executable that holds the Makefile and NAME, so `make run` and the
+ * sanitizer builds serve the repository's models/ and web/ wherever the
+ * checkout is (a stray build/web is not the repository's). */
 static bool repo_dir(const char *name, char *out, size_t cap)
 {
-    char exe[PATH_MAX];
-    ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+    char dir[PATH_MAX];
+    ssize_t n = readlink("/proc/self/exe", dir, sizeof dir - 1);
     if (n <= 0)
         return false;
-    exe[n] = '\0';
-    char *slash = strrchr(exe, '/');
-    if (slash == NULL)
-        return false;
-    *slash = '\0';
-    char want[PATH_MAX + 64];
-    snprintf(want, sizeof want, "%s/../%s", exe, name);
-    char *real = realpath(want, NULL);
-    bool ok = real != NULL && strlen(real) < cap;
-    if (ok)
-        snprintf(out, cap, "%s", real);
-    free(real);
-    return ok;
+    dir[n] = '\0';
+    char *slash;
+    while ((slash = strrchr(dir, '/')) != NULL) {
+        *slash = '\0';
+        char marker[PATH_MAX + 16], want[PATH_MAX + 64];
+        snprintf(marker, sizeof marker, "%s/Makefile", dir);
+        snprintf(want, sizeof want, "%s/%s", dir, name);
+        if (access(marker, F_OK) == 0 && access(want, F_OK) == 0) {
+            char *real = realpath(want, NULL);
+            bool ok = real != NULL && strlen(real) < cap;
+            if (ok)
+                snprintf(out, cap, "%s", real);
+            free(real);
+            return ok;
+        }
+    }
+    return false;
 }
 
 static void defaults(serve_args *a)

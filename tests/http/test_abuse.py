@@ -1,0 +1,391 @@
+"""Limits that hold under abuse: slow and never-finished requests, 1 MiB headers, 5,000 connections at
+once (--max-connections, --max-per-ip), bodies that lie about their length, pipelined floods, uploads
+cut off halfway, a disk that fills during an upload.
+
+Each test checks, while the abuse goes on, that /healthz answers from another client address
+(127.0.0.2: the per-IP limit is per address) within 100 ms -- the median of 11 probes, each on a
+fresh connection, so that one scheduling hiccup on a loaded 2-core machine does not decide it --
+and, after it, that nothing loaded was lost (GET /api/models: the same names and versions) and
+that the daemon's open file descriptors come back to where they were (+2 at most: an epoll or
+eventfd MHD may open lazily) and its RSS to within 10% + 8 MiB of where it was (allocator caches).
+"""
+import os
+import resource
+import select
+import socket
+import statistics
+import subprocess
+import tempfile
+import threading
+import time
+
+from harness import Daemon, check, eq, expect_error, expect_json, fail, ignore, our, test
+
+PROBE_FROM = "127.0.0.2"
+HEALTHZ_BUDGET_MS = 100.0
+FD_SLACK = 2
+RSS_SLACK = 0.10
+RSS_SLACK_BYTES = 8 << 20
+
+
+def fds(d):
+    return len(os.listdir("/proc/%d/fd" % d.proc.pid))
+
+
+def rss(d):
+    with open("/proc/%d/status" % d.proc.pid) as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+    fail("no VmRSS for the daemon")
+
+
+def listing(d):
+    return [(m["name"], m["version"]) for m in expect_json(d.get("/api/models"))["models"]]
+
+
+def healthz_ms(d):
+    """One /healthz on a fresh connection from PROBE_FROM: ms from connect to the whole answer."""
+    t0 = time.monotonic()
+    s = socket.socket()
+    s.settimeout(10)
+    try:
+        s.bind((PROBE_FROM, 0))
+        s.connect(("127.0.0.1", d.port))
+        s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        data = b""
+        while True:
+            c = s.recv(4096)
+            if not c:
+                break
+            data += c
+    finally:
+        s.close()
+    ms = (time.monotonic() - t0) * 1000.0
+    check(data.startswith(b"HTTP/1.1 200"), "/healthz under abuse: %r" % data[:100])
+    return ms
+
+
+def expect_healthz_fast(d, what):
+    ms = sorted(healthz_ms(d) for _ in range(11))
+    med = statistics.median(ms)
+    check(med < HEALTHZ_BUDGET_MS, "%s: /healthz median %.1f ms over 11 probes (budget %.0f ms): %s"
+          % (what, med, HEALTHZ_BUDGET_MS, ["%.1f" % x for x in ms]))
+
+
+class Baseline:
+    """What the daemon holds before the abuse; back() waits (up to `wait` s) for it to return."""
+
+    def __init__(self, d):
+        self.d = d
+        for _ in range(3):  # warm: the first answers allocate what later ones reuse
+            expect_healthz_fast(d, "before")
+        self.models = listing(d)
+        self.fds = fds(d)
+        self.rss = rss(d)
+
+    def back(self, what, wait=15):
+        end = time.time() + wait
+        while True:
+            f, r = fds(self.d), rss(self.d)
+            ok = f <= self.fds + FD_SLACK and r <= self.rss * (1 + RSS_SLACK) + RSS_SLACK_BYTES
+            if ok or time.time() > end:
+                break
+            time.sleep(0.2)
+        check(self.d.alive(), "%s: the daemon died: %s" % (what, self.d.stderr()[-1500:]))
+        check(f <= self.fds + FD_SLACK, "%s: %d fds open, %d before" % (what, f, self.fds))
+        check(r <= self.rss * (1 + RSS_SLACK) + RSS_SLACK_BYTES,
+              "%s: RSS %.1f MiB, %.1f MiB before" % (what, r / 2**20, self.rss / 2**20))
+        eq(listing(self.d), self.models, "%s: models listed" % what)
+        expect_healthz_fast(self.d, "after " + what)
+
+
+def raise_nofile(want):
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and hard < want:
+        ignore("needs %d file descriptors, the hard limit is %d" % (want, hard))
+    if soft == resource.RLIM_INFINITY or soft < want:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+
+
+def open_many(port, n, src="127.0.0.1"):
+    """n connected sockets (non-blocking connects, then waited for)."""
+    socks = []
+    for _ in range(n):
+        s = socket.socket()
+        s.setblocking(False)
+        s.bind((src, 0))
+        try:
+            s.connect(("127.0.0.1", port))
+        except BlockingIOError:
+            pass
+        socks.append(s)
+    return socks
+
+
+def closed_by_peer(socks, wait):
+    """How many of socks the daemon closed (EOF or reset) within `wait` s."""
+    p = select.poll()
+    by_fd = {s.fileno(): s for s in socks}
+    for s in socks:
+        p.register(s, select.POLLIN | select.POLLHUP | select.POLLERR)
+    closed = set()
+    end = time.time() + wait
+    while time.time() < end and len(closed) < len(socks):
+        for fd, ev in p.poll(200):
+            if fd in closed:
+                continue
+            s = by_fd[fd]
+            try:
+                data = s.recv(65536)
+            except BlockingIOError:
+                continue
+            except OSError:
+                data = b""
+            if not data or ev & (select.POLLHUP | select.POLLERR):
+                closed.add(fd)
+                p.unregister(fd)
+    return len(closed)
+
+
+def close_all(socks):
+    for s in socks:
+        s.close()
+
+
+def abuse_daemon(*args):
+    return Daemon([our("cornell.obj"), our("sphere.obj")],
+                  ["--threads", "2", "--connection-timeout", "2"] + list(args), name="abuse daemon")
+
+
+@test
+def test_abuse_slow_and_unfinished_requests_time_out():
+    d = abuse_daemon()
+    try:
+        base = Baseline(d)
+        # 200 requests that stop halfway through their headers, 50 bodies that stop after 10 of
+        # 1000 bytes, and 20 that trickle a header byte every 100 ms.
+        stalled = open_many(d.port, 200)
+        time.sleep(0.2)
+        for s in stalled:
+            try:
+                s.send(b"GET /api/models HTTP/1.1\r\nHost: x\r\nX-Half: ")
+            except OSError:
+                pass
+        bodies = open_many(d.port, 50)
+        time.sleep(0.2)
+        for s in bodies:
+            try:
+                s.send(b"POST /api/render HTTP/1.1\r\nHost: x\r\nContent-Length: 1000\r\n\r\n{\"model\":")
+            except OSError:
+                pass
+        stop = threading.Event()
+
+        def trickle():
+            ts = open_many(d.port, 20)
+            time.sleep(0.2)
+            req = b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Slow: " + b"a" * 1000
+            i = 0
+            while not stop.is_set() and i < len(req):
+                for s in ts:
+                    try:
+                        s.send(req[i:i + 1])
+                    except OSError:
+                        pass
+                i += 1
+                time.sleep(0.1)
+            close_all(ts)
+
+        t = threading.Thread(target=trickle, daemon=True)
+        t.start()
+        expect_healthz_fast(d, "270 slow or stalled requests")
+        # --connection-timeout 2: every stalled connection is closed by the daemon, none answered
+        n = closed_by_peer(stalled + bodies, wait=10)
+        eq(n, len(stalled) + len(bodies), "stalled connections closed by the daemon within 10 s")
+        stop.set()
+        t.join()
+        close_all(stalled + bodies)
+        base.back("slow and unfinished requests")
+    finally:
+        d.stop_clean()
+
+
+@test
+def test_abuse_one_mib_of_headers():
+    d = abuse_daemon()
+    try:
+        base = Baseline(d)
+        for header in (b"X-Big: " + b"a" * (1 << 20), b"\r\n".join(b"X-%d: %s" % (i, b"b" * 1000)
+                                                                 for i in range(1024))):
+            r = d.raw(b"GET /api/models HTTP/1.1\r\nHost: x\r\n" + header + b"\r\n\r\n", timeout=20)
+            # libmicrohttpd answers 431 (headers past the per-connection memory, 64 KiB) and closes;
+            # a close without an answer is as good, a 200 is not
+            check(r.status in (0, 413, 431), "1 MiB of headers: %r" % r.short())
+        base.back("1 MiB headers")
+    finally:
+        d.stop_clean()
+
+
+@test
+def test_abuse_5000_connections_per_ip_limit():
+    raise_nofile(12000)
+    d = abuse_daemon("--max-per-ip", "100", "--max-connections", "6000")
+    try:
+        base = Baseline(d)
+        socks = open_many(d.port, 5000)
+        try:
+            time.sleep(1)
+            expect_healthz_fast(d, "5,000 connections from 127.0.0.1")
+            # all but 100 are closed at once by the per-IP limit, the rest by the connection timeout
+            n = closed_by_peer(socks, wait=1.5)
+            check(n >= 4900, "per-IP limit 100: only %d of 5000 connections closed within 1.5 s" % n)
+        finally:
+            close_all(socks)
+        base.back("5,000 connections, per-IP limit")
+    finally:
+        d.stop_clean()
+
+
+@test
+def test_abuse_5000_connections_global_limit():
+    raise_nofile(12000)
+    d = abuse_daemon("--max-connections", "300", "--max-per-ip", "6000")
+    try:
+        base = Baseline(d)
+        socks = open_many(d.port, 5000)
+        try:
+            time.sleep(1.5)
+            # at the limit the daemon accepts no more: the rest wait in the kernel's listen backlog
+            held = fds(d) - base.fds
+            check(held <= 300 + FD_SLACK, "--max-connections 300: the daemon holds %d more fds" % held)
+        finally:
+            close_all(socks)
+        # the held ones time out (2 s), the queued ones are accepted, find their peer gone, close
+        base.back("5,000 connections, global limit", wait=60)
+    finally:
+        d.stop_clean()
+
+
+@test
+def test_abuse_bodies_that_lie_about_their_length():
+    d = abuse_daemon()
+    try:
+        base = Baseline(d)
+        body = b'{"model":"cornell","width":8,"height":8,"format":"json"}'
+        # longer than sent, then closed: nothing to answer, nothing kept
+        for _ in range(50):
+            s = socket.create_connection(("127.0.0.1", d.port))
+            s.sendall(b"POST /api/render HTTP/1.1\r\nHost: x\r\nContent-Length: 100000\r\n\r\n" + body)
+            s.close()
+        # shorter than sent: the body is the first 10 bytes (malformed JSON: 400), the rest is read as
+        # the next request (not HTTP: 400 or closed)
+        r = d.raw(b"POST /api/render HTTP/1.1\r\nHost: x\r\nContent-Length: 10\r\n\r\n" + body, timeout=10)
+        expect_error(r, 400, "bad_request")
+        # a length that is not a number, and one past 2^64
+        for cl in (b"abc", b"99999999999999999999999"):
+            r = d.raw(b"POST /api/render HTTP/1.1\r\nHost: x\r\nContent-Length: " + cl + b"\r\n\r\n" + body,
+                      timeout=10)
+            check(r.status in (0, 400, 413), "Content-Length %r: %s" % (cl, r.short()))
+        expect_healthz_fast(d, "lying bodies")
+        base.back("bodies that lie about their length")
+    finally:
+        d.stop_clean()
+
+
+@test
+def test_abuse_pipelined_flood():
+    d = abuse_daemon()
+    try:
+        base = Baseline(d)
+        n = 2000
+        results = [None] * 4
+
+        def flood(i):
+            s = socket.create_connection(("127.0.0.1", d.port), timeout=30)
+            s.sendall(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n" * (n - 1) +
+                      b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+            data = b""
+            while True:
+                c = s.recv(1 << 16)
+                if not c:
+                    break
+                data += c
+            s.close()
+            results[i] = data.count(b"HTTP/1.1 200 OK")
+
+        ts = [threading.Thread(target=flood, args=(i,), daemon=True) for i in range(4)]
+        for t in ts:
+            t.start()
+        expect_healthz_fast(d, "4 x 2000 pipelined requests")
+        for t in ts:
+            t.join(60)
+        eq(results, [n] * 4, "answers to 4 connections of 2000 pipelined /healthz each")
+        base.back("pipelined flood")
+    finally:
+        d.stop_clean()
+
+
+def upload_dirs():
+    return {e for e in os.listdir(tempfile.gettempdir()) if e.startswith("arbord-upload-")}
+
+
+@test
+def test_abuse_uploads_cut_off_halfway():
+    d = abuse_daemon()
+    try:
+        base = Baseline(d)
+        before = upload_dirs()
+        with open(our("sphere.obj"), "rb") as f:
+            obj = f.read()
+        boundary = b"cutcutcut"
+        multipart = (b"--" + boundary + b"\r\nContent-Disposition: form-data; name=\"f\"; filename=\"cut.obj\"\r\n"
+                     b"Content-Type: text/plain\r\n\r\n" + obj + b"\r\n--" + boundary + b"--\r\n")
+        for i in range(20):
+            for head, body in ((b"PUT /api/models/cut HTTP/1.1\r\n", obj),
+                               (b"POST /api/models/cut HTTP/1.1\r\nContent-Type: multipart/form-data; boundary="
+                                + boundary + b"\r\n", multipart)):
+                s = socket.create_connection(("127.0.0.1", d.port))
+                s.sendall(head + b"Host: x\r\nContent-Length: %d\r\n\r\n" % len(body) + body[:len(body) // 2])
+                s.close()
+        expect_healthz_fast(d, "uploads cut off")
+        base.back("uploads cut off halfway")
+        left = upload_dirs() - before
+        eq(sorted(left), [], "temporary upload folders left behind")
+        eq([f for f in os.listdir(d.models_dir) if f.startswith("cut") or f.startswith(".cut")], [],
+           "files of the cut uploads in the models folder")
+    finally:
+        d.stop_clean()
+
+
+@test
+def test_abuse_disk_full_on_upload():
+    """--models on a 256 KiB tmpfs: an upload that does not fit is 507 insufficient_storage, leaves no
+    partial file, and the daemon goes on."""
+    if os.geteuid() != 0:
+        ignore("needs root to mount a small tmpfs")
+    mnt = tempfile.mkdtemp(prefix="arbor-full-")
+    p = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", mnt], capture_output=True)
+    if p.returncode != 0:
+        os.rmdir(mnt)
+        ignore("cannot mount a tmpfs: %s" % p.stderr.decode().strip())
+    try:
+        with open(our("cornell.obj"), "rb") as f:
+            small = f.read()
+        with open(our("sphere.obj"), "rb") as f:
+            big = f.read()  # 160 KiB: fits once, not twice
+        with open(os.path.join(mnt, "cornell.obj"), "wb") as f:
+            f.write(small)
+        d = Daemon(models_dir=mnt, args=["--threads", "2"], name="disk-full daemon")
+        try:
+            base = Baseline(d)
+            expect_json(d.req("PUT", "/api/models/first", body=big), 201)
+            base.models = listing(d)
+            r = d.req("PUT", "/api/models/second", body=big)
+            expect_error(r, 507, "insufficient_storage")
+            eq(sorted(os.listdir(mnt)), ["cornell.obj", "first.obj"], "files in the full models folder")
+            base.back("disk full on upload")
+        finally:
+            d.stop_clean()
+    finally:
+        subprocess.run(["umount", mnt])
+        os.rmdir(mnt)
