@@ -30,7 +30,8 @@ typedef struct {
     arbor_vec3 ks;  /* specular colour */
     arbor_vec3 ke;  /* emission */
     float ns;       /* specular exponent */
-    float d;        /* opacity */
+    float d;        /* opacity (MTL dissolve); below 1 the renderer treats it as glass */
+    float ni;       /* index of refraction (MTL Ni); 0 when not given, rendered as 1 */
     int illum;      /* MTL illumination model; 3 and 5 are mirrors */
 } arbor_material;
 

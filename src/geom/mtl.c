@@ -2,8 +2,8 @@
  * mtl.c - Wavefront MTL material libraries and the name index that OBJ
  * usemtl lines and MTL newmtl lines share (see src/geom/loader.h).
  *
- * Read: newmtl, Kd, Ks, Ke (colours), Ns, d (floats), illum (integer); every
- * other statement is skipped.
+ * Read: newmtl, Kd, Ks, Ke (colours), Ns, Ni, d (floats), illum (integer);
+ * every other statement is skipped.
  */
 #include <stdlib.h>
 #include <string.h>
@@ -156,7 +156,7 @@ static bool read_illum(mtl_reader *r, int *out, arbor_err *e)
 /* The statements that set a value of the current material. */
 static bool is_value_statement(const char *w, size_t n)
 {
-    static const char *const names[] = {"Kd", "Ks", "Ke", "Ns", "d", "illum"};
+    static const char *const names[] = {"Kd", "Ks", "Ke", "Ns", "Ni", "d", "illum"};
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
         if (text_word_is(w, n, names[i]))
             return true;
@@ -180,6 +180,8 @@ static bool read_statement(mtl_reader *r, const char *w, size_t n, arbor_err *e)
         return read_colour(r, "Ke", &mat->ke, e);
     if (text_word_is(w, n, "Ns"))
         return text_read_float(&r->c, "Ns", &mat->ns, e);
+    if (text_word_is(w, n, "Ni"))
+        return text_read_float(&r->c, "Ni", &mat->ni, e);
     if (text_word_is(w, n, "d"))
         return read_opacity(r, &mat->d, e);
     return read_illum(r, &mat->illum, e);

@@ -353,6 +353,7 @@ static void test_mtl_values_reach_the_materials_faces_use(void)
                         "Ks 0.9 0.8 0.7\n"
                         "Ns 250\n"
                         "Ke 1 2 3\n"
+                        "Ni 1.45\n"
                         "d 0.5\n"
                         "illum 3\n"
                         "map_Kd shiny.png\n"
@@ -373,9 +374,11 @@ static void test_mtl_values_reach_the_materials_faces_use(void)
     assert_vec(1, 2, 3, shiny->ke);
     TEST_ASSERT_EQUAL_FLOAT(250.0f, shiny->ns);
     TEST_ASSERT_EQUAL_FLOAT(0.5f, shiny->d);
+    TEST_ASSERT_EQUAL_FLOAT(1.45f, shiny->ni);
     TEST_ASSERT_EQUAL_INT(3, shiny->illum);
     assert_vec(0.3f, 0.3f, 0.3f, grey->kd);
     TEST_ASSERT_EQUAL_FLOAT(0.25f, grey->d);
+    TEST_ASSERT_EQUAL_FLOAT(0.0f, grey->ni); /* not given: the renderer takes 1 */
     TEST_ASSERT_EQUAL_INT(1, grey->illum);
     uint32_t expected[] = {0, (uint32_t)(shiny - m.mats), (uint32_t)(grey - m.mats)};
     TEST_ASSERT_EQUAL_UINT32_ARRAY(expected, m.tri_mat, 3);
@@ -479,6 +482,11 @@ static void test_malformed_mtl_fails_with_its_line(void)
     snprintf(obj, sizeof obj, "mtllib early.mtl\n%sf 1 2 3\n", cube_faces);
     TEST_ASSERT_FALSE(arbor_load_model(write_text("early.obj", obj), &m, &e));
     assert_error(&e, ARBOR_ERR_PARSE, "early.mtl:1: Kd before any newmtl");
+
+    write_text("badni.mtl", "newmtl glass\nd 0.1\nNi glassy\n");
+    snprintf(obj, sizeof obj, "mtllib badni.mtl\n%sf 1 2 3\n", cube_faces);
+    TEST_ASSERT_FALSE(arbor_load_model(write_text("badni.obj", obj), &m, &e));
+    assert_error(&e, ARBOR_ERR_PARSE, "badni.mtl:3: malformed number 'glassy'");
 }
 
 /* ---- gzip ---- */
