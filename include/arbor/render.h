@@ -14,7 +14,13 @@
  *            protocol view; for other views it moves with the camera), hard
  *            shadows, 15% ambient so shadows are not black, no falloff;
  *            mirror materials (arbor_material_is_mirror) reflect, tinted by
- *            Ks (0.9 when Ks is black), up to max_bounces; gamma 2.2.
+ *            Ks (0.9 when Ks is black); glass (below) reflects and refracts;
+ *            each reflection or refraction is a bounce, up to max_bounces,
+ *            and a mirror or glass met with none left is shaded as an opaque
+ *            surface. Radiance is summed in linear light and written with
+ *            the sRGB transfer curve (12.92 x up to 0.0031308, then
+ *            1.055 x^(1/2.4) - 0.055); the background colour is taken as
+ *            sRGB-encoded and decoded with the inverse curve.
  *   normals  the shading normal turned toward the viewer, as n*0.5+0.5.
  * The shading normal is the geometric one, or, on models that carry vertex
  * normals (OBJ vn), those interpolated across the triangle (smooth
@@ -22,13 +28,40 @@
  *   depth    hit distance as grey: white at the nearest point of the
  *            model's bounding box, black at its farthest corner.
  *   ao       ambient occlusion: the fraction of ao_samples cosine-weighted
- *            rays of length ao_radius * d that escape, as grey.
+ *            rays of length ao_radius * d that escape, as grey (any
+ *            surface occludes, glass too).
  *   heat     false colour (blue, cyan, green, yellow, red, white) of each
  *            pixel's traversal cost = node steps + triangles tested by
  *            its primary rays (mean over samples); the top of the scale is
  *            the frame's 99th percentile, reported with the max and mean.
- * d is the model's diagonal |B.max - B.min|; secondary rays start at
- * p + 1e-4 d n, n the geometric normal turned toward the incoming ray.
+ * d is the model's diagonal |B.max - B.min|. The normals, depth, ao and
+ * heat modes write their values as they are, without a transfer curve.
+ *
+ * Glass: a material with MTL d (dissolve) below 1. The fraction d of its
+ * surface is shaded as an opaque one (Kd, Ke, shadows); the rest, 1 - d, is a
+ * clear dielectric of index Ni (1 when the file gives none) in air: light
+ * meeting it splits into a reflected part R and a refracted part 1 - R, R the
+ * exact Fresnel reflectance of unpolarised light at that angle (all of it
+ * reflected under total internal reflection); Snell's law turns the
+ * refracted ray. Which side is inside follows the winding: a ray against the
+ * geometric normal (b - a) x (c - a) enters. Both parts are traced (the
+ * reflected and refracted rays count as bounces), without tint: Kd colours
+ * only the opaque fraction. A shadow ray is not refracted; it goes straight
+ * to the light and each glass face it crosses at angle theta passes
+ * (1 - d)(1 - R(theta)), R for light arriving from outside (exact for a
+ * pane, whose light leaves at the angle it entered); an opaque surface
+ * blocks it, as do more than 32 glass faces.
+ *
+ * Secondary rays (shadow, AO, reflection, refraction) start at the hit point
+ * rebuilt from the triangle's corners and barycentrics, offset along the
+ * geometric normal n (turned toward the incoming ray; away from it for
+ * refraction and glass crossings) by Waechter & Binder's method (Ray Tracing
+ * Gems, ch. 6): 256 n_i ulps of each coordinate p_i, or, where |p_i| is
+ * below s_i / 32, s_i n_i / 65536, s_i the largest |coordinate| of the model
+ * on axis i (at least d / 1024). The offset follows the precision of the point, so
+ * models far from the origin do not shadow themselves, and scaling a model
+ * by a power of two scales every offset with it. (PROTOCOL.md's ray sets,
+ * src/render/raysets.c, keep its p + 1e-4 d n.)
  *
  * Regions: a frame may render only a rectangle of itself. Since a pixel's
  * value depends only on the parameters and its own (x, y), a region's pixels

@@ -19,8 +19,9 @@
 
 #define AMBIENT 0.15f
 #define MIRROR_TINT_DEFAULT 0.9f
-#define GAMMA 2.2f
-#define EPS_FACTOR 1e-4f     /* PROTOCOL.md's offset of secondary origins, times d */
+/* Translucent faces a shadow ray may cross before its light counts as
+ * blocked: each costs a closest-hit ray, and a closed glass object takes two. */
+#define MAX_SHADOW_CROSSINGS 32
 #define HEAT_PERCENTILE 0.99
 #define HEAT_BINS 4096
 
@@ -39,7 +40,8 @@ struct arbor_frame {
 
     /* derived once at submission, read-only while rendering */
     bool count;                 /* count nodes and triangles of primary rays */
-    float eps;                  /* secondary-ray offset */
+    bool translucent;           /* some material has d < 1: shadow rays look for glass */
+    sample_offset_scale offset; /* of secondary-ray origins (sampling.h) */
     float ao_length;            /* AO ray length */
     arbor_vec3 light;
     arbor_vec3 background_linear;
@@ -171,6 +173,27 @@ static const arbor_material *material_of(const arbor_frame *f, uint32_t tri)
     return &f->mesh->mats[f->mesh->tri_mat[tri]];
 }
 
+/* Where a ray hit: the point rebuilt on the triangle, the unit geometric
+ * normal turned to face the incoming ray, and the origin for rays leaving on
+ * that side (shadow, AO, reflection), offset robustly (sampling.h). */
+static sample_surface surface_at(const arbor_frame *f, const arbor_ray *r, const arbor_hit *h)
+{
+    sample_surface s;
+    s.p = sample_hit_point(f->mesh, h);
+    s.n = vec3_normalize(arbor_mesh_tri_normal(f->mesh, h->tri));
+    if (vec3_dot(s.n, r->d) > 0.0f)
+        s.n = vec3_scale(s.n, -1.0f);
+    s.origin = sample_offset_ray(s.p, s.n, &f->offset);
+    return s;
+}
+
+/* The origin for a ray that goes through the surface (refraction, a shadow
+ * ray crossing glass): offset to the far side. */
+static arbor_vec3 origin_behind(const arbor_frame *f, const sample_surface *s)
+{
+    return sample_offset_ray(s->p, vec3_scale(s->n, -1.0f), &f->offset);
+}
+
 /* The normal to shade with: the vertex normals interpolated where the
  * model has them (smooth shading), turned to the side of the geometric
  * normal s->n faces (the viewer's), else s->n itself. */
@@ -180,20 +203,83 @@ static arbor_vec3 shading_normal(const arbor_frame *f, const arbor_hit *h, const
     return vec3_dot(n, s->n) < 0.0f ? vec3_scale(n, -1.0f) : n;
 }
 
+/* ---- glass: MTL d below 1 (see render.h for the model) ---- */
+
+static bool is_translucent(const arbor_material *mat)
+{
+    return mat->d < 1.0f;
+}
+
+/* The index of refraction; an MTL without Ni leaves it 0, which (like any
+ * value not above 0) is taken as 1: no bending, no reflection. */
+static float index_of(const arbor_material *mat)
+{
+    return mat->ni > 0.0f ? mat->ni : 1.0f;
+}
+
+/* The exact Fresnel reflectance of unpolarised light meeting an interface at
+ * cos_i (> 0) from the side of index n1, eta = n1 / n2; 1 under total
+ * internal reflection. *cos_t gets the cosine of the refracted ray. */
+static float fresnel(float cos_i, float eta, float *cos_t)
+{
+    float sin2_t = eta * eta * (1.0f - cos_i * cos_i);
+    if (sin2_t >= 1.0f) {
+        *cos_t = 0.0f;
+        return 1.0f;
+    }
+    float ct = sqrtf(1.0f - sin2_t);
+    float rs = (eta * cos_i - ct) / (eta * cos_i + ct);
+    float rp = (cos_i - eta * ct) / (cos_i + eta * ct);
+    *cos_t = ct;
+    return 0.5f * (rs * rs + rp * rp);
+}
+
+/* What a translucent face passes of a shadow ray crossing it at cos_i:
+ * (1 - d)(1 - R), R the reflectance of light meeting the face from outside at
+ * that angle. The ray goes on straight; light through a pane leaves at the
+ * angle it entered, and by reciprocity the inner face reflects as much of it
+ * as the outer one, so a pane passes (1 - d)^2 (1 - R)^2, as the path that
+ * refracts would. */
+static float crossing_transmittance(const arbor_material *mat, float cos_i)
+{
+    float cos_t;
+    return (1.0f - clamp01(mat->d)) * (1.0f - fresnel(cos_i, 1.0f / index_of(mat), &cos_t));
+}
+
+/* The fraction of the point light reaching origin along the straight
+ * segment: 1 when nothing is in the way, 0 behind an opaque surface, else the
+ * product of the translucent faces' crossing_transmittance. Scenes without
+ * glass ask one any-hit query. */
+static float light_transmittance(const arbor_frame *f, arbor_vec3 origin, tile_tally *t)
+{
+    /* t in (0, 1) along the unnormalised vector: the light itself is not an occluder */
+    arbor_ray r = {origin, 0.0f, vec3_sub(f->light, origin), 1.0f};
+    if (!f->translucent)
+        return occluded(f, &r, t) ? 0.0f : 1.0f;
+    float pass = 1.0f;
+    for (int i = 0; i < MAX_SHADOW_CROSSINGS && pass > 0.0f; i++) {
+        arbor_hit h;
+        if (!trace_secondary(f, &r, &h, t))
+            return pass;
+        const arbor_material *mat = material_of(f, h.tri);
+        if (!is_translucent(mat))
+            return 0.0f;
+        sample_surface s = surface_at(f, &r, &h);
+        pass *= crossing_transmittance(mat, -vec3_dot(vec3_normalize(r.d), s.n));
+        r.o = origin_behind(f, &s);
+        r.d = vec3_sub(f->light, r.o);
+        r.tmax = 1.0f; /* the query shrank it to the hit */
+    }
+    return 0.0f;
+}
+
 /* Kd-weighted light arriving at s (linear), shaded with normal n: ambient
- * plus the unshadowed Lambert term of the point light. */
+ * plus the Lambert term of the point light, times what reaches s of it. */
 static arbor_vec3 lambert(const arbor_frame *f, const sample_surface *s, arbor_vec3 n, const arbor_material *mat,
                           tile_tally *t)
 {
-    arbor_vec3 to_light = vec3_sub(f->light, s->origin);
-    float cosine = vec3_dot(n, vec3_normalize(to_light));
-    float direct = 0.0f;
-    if (cosine > 0.0f) {
-        /* t in (0, 1) along the unnormalised vector: the light itself is not an occluder */
-        arbor_ray shadow = {s->origin, 0.0f, to_light, 1.0f};
-        if (!occluded(f, &shadow, t))
-            direct = cosine;
-    }
+    float cosine = vec3_dot(n, vec3_normalize(vec3_sub(f->light, s->origin)));
+    float direct = cosine > 0.0f ? cosine * light_transmittance(f, s->origin, t) : 0.0f;
     return vec3_scale(mat->kd, AMBIENT + (1.0f - AMBIENT) * direct);
 }
 
@@ -203,27 +289,91 @@ static arbor_vec3 mirror_tint(const arbor_material *mat)
     return black ? grey(MIRROR_TINT_DEFAULT) : mat->ks;
 }
 
-/* Follows mirror bounces iteratively; `throughput` is the product of the
- * tints of the mirrors met so far. Linear radiance. */
+static bool is_black(arbor_vec3 c)
+{
+    return !(c.x > 0.0f || c.y > 0.0f || c.z > 0.0f);
+}
+
+/* A ray still to follow in shade_shaded, with what it carries to the pixel. */
+typedef struct {
+    arbor_ray r;
+    arbor_vec3 weight;
+    int bounce;
+} shaded_path;
+
+/* Every path has at most two children (glass reflects and refracts), each a
+ * bounce deeper, and is followed depth first: at most one waiting sibling
+ * per bounce, plus the path in hand. */
+#define SHADED_STACK (ARBOR_MAX_BOUNCES + 1)
+
+static void push_path(shaded_path *stack, int *n, arbor_vec3 o, arbor_vec3 d, arbor_vec3 weight, int bounce)
+{
+    if (is_black(weight))
+        return;
+    shaded_path q = {{o, 0.0f, d, INFINITY}, weight, bounce};
+    stack[(*n)++] = q;
+}
+
+/* A hit on glass within the bounce budget: the opaque fraction d of the
+ * surface is shaded as usual into *sum, the clear rest splits by Fresnel into
+ * a reflected and a refracted path (only the reflected one under total
+ * internal reflection). The side is the winding's: a ray against the
+ * geometric normal (b - a) x (c - a) enters, one along it leaves. */
+static void shade_glass(const arbor_frame *f, const shaded_path *q, const arbor_hit *h, const sample_surface *s,
+                        const arbor_material *mat, shaded_path *stack, int *n, arbor_vec3 *sum, tile_tally *t)
+{
+    float d = clamp01(mat->d);
+    if (d > 0.0f) {
+        arbor_vec3 opaque = vec3_add(mat->ke, lambert(f, s, shading_normal(f, h, s), mat, t));
+        *sum = vec3_add(*sum, vec3_mul(q->weight, vec3_scale(opaque, d)));
+    }
+    arbor_vec3 dir = vec3_normalize(q->r.d);
+    float cos_i = -vec3_dot(dir, s->n);
+    bool entering = vec3_dot(q->r.d, arbor_mesh_tri_normal(f->mesh, h->tri)) < 0.0f;
+    float eta = entering ? 1.0f / index_of(mat) : index_of(mat);
+    float cos_t;
+    float reflectance = fresnel(cos_i, eta, &cos_t);
+    arbor_vec3 clear = vec3_scale(q->weight, 1.0f - d);
+    arbor_vec3 mirrored = vec3_add(dir, vec3_scale(s->n, 2.0f * cos_i));
+    push_path(stack, n, s->origin, mirrored, vec3_scale(clear, reflectance), q->bounce + 1);
+    if (reflectance < 1.0f) {
+        arbor_vec3 refracted = vec3_add(vec3_scale(dir, eta), vec3_scale(s->n, eta * cos_i - cos_t));
+        push_path(stack, n, origin_behind(f, s), refracted, vec3_scale(clear, 1.0f - reflectance), q->bounce + 1);
+    }
+}
+
+/* Follows mirror and glass bounces depth first, without recursion; a path's
+ * weight is the product of the tints and Fresnel factors met so far. Linear
+ * radiance. */
 static arbor_vec3 shade_shaded(const arbor_frame *f, arbor_ray r, tile_tally *t)
 {
-    arbor_vec3 throughput = grey(1.0f);
-    for (int bounce = 0;; bounce++) {
+    shaded_path stack[SHADED_STACK];
+    int n = 0;
+    push_path(stack, &n, r.o, r.d, grey(1.0f), 0);
+    arbor_vec3 sum = grey(0.0f);
+    while (n > 0) {
+        shaded_path q = stack[--n];
         arbor_hit h;
-        bool hit = bounce == 0 ? trace_primary(f, &r, &h, t) : trace_secondary(f, &r, &h, t);
-        if (!hit)
-            return vec3_mul(throughput, f->background_linear);
-        const arbor_material *mat = material_of(f, h.tri);
-        sample_surface s = sample_surface_at(f->mesh, &r, &h, f->eps);
-        if (arbor_material_is_mirror(mat) && bounce < f->params.max_bounces) {
-            throughput = vec3_mul(throughput, mirror_tint(mat));
-            arbor_vec3 d = vec3_sub(r.d, vec3_scale(s.n, 2.0f * vec3_dot(r.d, s.n)));
-            arbor_ray next = {s.origin, 0.0f, d, INFINITY};
-            r = next;
+        bool hit = q.bounce == 0 ? trace_primary(f, &q.r, &h, t) : trace_secondary(f, &q.r, &h, t);
+        if (!hit) {
+            sum = vec3_add(sum, vec3_mul(q.weight, f->background_linear));
             continue;
         }
-        return vec3_mul(throughput, vec3_add(mat->ke, lambert(f, &s, shading_normal(f, &h, &s), mat, t)));
+        const arbor_material *mat = material_of(f, h.tri);
+        sample_surface s = surface_at(f, &q.r, &h);
+        if (q.bounce < f->params.max_bounces && is_translucent(mat)) {
+            shade_glass(f, &q, &h, &s, mat, stack, &n, &sum, t);
+            continue;
+        }
+        if (q.bounce < f->params.max_bounces && arbor_material_is_mirror(mat)) {
+            arbor_vec3 d = vec3_sub(q.r.d, vec3_scale(s.n, 2.0f * vec3_dot(q.r.d, s.n)));
+            push_path(stack, &n, s.origin, d, vec3_mul(q.weight, mirror_tint(mat)), q.bounce + 1);
+            continue;
+        }
+        arbor_vec3 opaque = vec3_add(mat->ke, lambert(f, &s, shading_normal(f, &h, &s), mat, t));
+        sum = vec3_add(sum, vec3_mul(q.weight, opaque));
     }
+    return sum;
 }
 
 static arbor_vec3 shade_normals(const arbor_frame *f, arbor_ray r, tile_tally *t)
@@ -231,7 +381,7 @@ static arbor_vec3 shade_normals(const arbor_frame *f, arbor_ray r, tile_tally *t
     arbor_hit h;
     if (!trace_primary(f, &r, &h, t))
         return f->params.background;
-    sample_surface s = sample_surface_at(f->mesh, &r, &h, f->eps);
+    sample_surface s = surface_at(f, &r, &h);
     return vec3_add(vec3_scale(shading_normal(f, &h, &s), 0.5f), grey(0.5f));
 }
 
@@ -249,7 +399,7 @@ static arbor_vec3 shade_ao(const arbor_frame *f, arbor_ray r, sample_rng *g, til
     arbor_hit h;
     if (!trace_primary(f, &r, &h, t))
         return f->params.background;
-    sample_surface s = sample_surface_at(f->mesh, &r, &h, f->eps);
+    sample_surface s = surface_at(f, &r, &h);
     int open = 0;
     for (int i = 0; i < f->params.ao_samples; i++) {
         float u1 = sample_float(g), u2 = sample_float(g);
@@ -318,6 +468,19 @@ static void sample_offset(int s, int spp, int grid, const uint8_t *perm, sample_
     }
 }
 
+/* The sRGB transfer curve (IEC 61966-2-1) and its inverse, on [0, 1]: a
+ * line near black, a 2.4 power above, so that the bytes mean what every PNG
+ * viewer assumes they mean. */
+static float srgb_encode(float linear)
+{
+    return linear <= 0.0031308f ? 12.92f * linear : 1.055f * powf(linear, 1.0f / 2.4f) - 0.055f;
+}
+
+static float srgb_decode(float encoded)
+{
+    return encoded <= 0.04045f ? encoded / 12.92f : powf((encoded + 0.055f) / 1.055f, 2.4f);
+}
+
 static uint8_t to_byte(float v)
 {
     return (uint8_t)(clamp01(v) * 255.0f + 0.5f);
@@ -355,8 +518,7 @@ static void render_pixel(arbor_frame *f, int x, int y, tile_tally *t)
     }
     arbor_vec3 c = vec3_scale(sum, 1.0f / (float)spp);
     if (p->mode == ARBOR_MODE_SHADED) {
-        c = vec3(powf(clamp01(c.x), 1.0f / GAMMA), powf(clamp01(c.y), 1.0f / GAMMA),
-                 powf(clamp01(c.z), 1.0f / GAMMA));
+        c = vec3(srgb_encode(clamp01(c.x)), srgb_encode(clamp01(c.y)), srgb_encode(clamp01(c.z)));
     }
     store_rgb(f->rgb + 3 * index, c);
 }
@@ -482,11 +644,14 @@ static void frame_setup(arbor_frame *f)
     const arbor_camera *c = &p->camera;
     float d = sample_model_size(f->mesh);
     f->count = p->count_primary || p->mode == ARBOR_MODE_HEAT;
-    f->eps = EPS_FACTOR * d;
+    f->offset = sample_offset_scale_of(f->mesh);
+    f->translucent = false;
+    for (uint32_t i = 0; i < f->mesh->nmats; i++)
+        f->translucent |= is_translucent(&f->mesh->mats[i]);
     f->ao_length = p->ao_radius * d;
     f->light = vec3_add(c->eye, vec3_scale(c->up, 0.5f * d));
-    f->background_linear = vec3(powf(p->background.x, GAMMA), powf(p->background.y, GAMMA),
-                                powf(p->background.z, GAMMA));
+    f->background_linear = vec3(srgb_decode(p->background.x), srgb_decode(p->background.y),
+                                srgb_decode(p->background.z));
     box_distances(f->mesh->bounds, c->eye, &f->depth_near, &f->depth_far);
     if (!(f->depth_far > f->depth_near))
         f->depth_far = f->depth_near + 1.0f;

@@ -11,6 +11,7 @@
 #define ARBOR_RENDER_SAMPLING_H
 
 #include <stdint.h>
+#include <string.h>
 
 #include "arbor/mesh.h"
 #include "arbor/ray.h"
@@ -80,6 +81,91 @@ static inline sample_surface sample_surface_at(const arbor_mesh *m, const arbor_
         s.n = vec3_scale(s.n, -1.0f);
     s.origin = vec3_add(s.p, vec3_scale(s.n, eps));
     return s;
+}
+
+/* ---- the renderer's robust offset ----
+ *
+ * PROTOCOL.md's p + 1e-4 d n above serves the benchmark's ray sets, which
+ * must be the same for every tracer. Its hit point o + t d carries an error
+ * proportional to |o| + t |d|, and its lift is fixed in units of the model:
+ * far from the origin (a model of diagonal 20 at 1e5, where floats are 2^-7
+ * apart) the lift rounds away and about half the shadow rays hit their own
+ * triangle, while a fixed lift wider than a gap lets light through it. The
+ * renderer instead rebuilds the hit point from the triangle's corners and
+ * offsets it by a few ulps of its own coordinates (Waechter & Binder, "A Fast
+ * and Robust Method for Avoiding Self-Intersection", Ray Tracing Gems ch. 6). */
+
+/* The hit point as the barycentric mix w a + u b + v c of the corners: an
+ * affine combination of the corners lies on their plane whatever the error in
+ * (u, v), so it is off the plane only by the rounding of this sum, a few ulps
+ * of the corners' coordinates, however far the ray came. */
+static inline arbor_vec3 sample_hit_point(const arbor_mesh *m, const arbor_hit *h)
+{
+    arbor_vec3 a, b, c;
+    arbor_mesh_tri(m, h->tri, &a, &b, &c);
+    float w = 1.0f - h->u - h->v;
+    return vec3_add(vec3_add(vec3_scale(a, w), vec3_scale(b, h->u)), vec3_scale(c, h->v));
+}
+
+/* Waechter & Binder's constants: 256 ulps per unit of the normal, and, for
+ * coordinates below 1/32 where ulps shrink toward zero faster than the error
+ * (which follows the corners, not the point), a fixed 1/65536 instead. The
+ * two fallback constants assume a scene of about unit size; here they are in
+ * units of s_i, per axis the largest |coordinate| the model reaches, which
+ * bounds the corners' and so the error's size near zero. A model thus gets
+ * the same offsets, and the same image, in any unit: scaled by a power of two
+ * every offset scales exactly with it. s_i is at least d / 1024 so that a
+ * model flat on an axis plane (s_i = 0, p_i exactly 0) still steps off it by
+ * a normal float rather than by denormals. */
+#define SAMPLE_OFFSET_ULPS 256.0f
+#define SAMPLE_OFFSET_NEAR (1.0f / 32.0f)
+#define SAMPLE_OFFSET_STEP (1.0f / 65536.0f)
+
+typedef struct {
+    arbor_vec3 near;  /* |p_i| below near_i: offset by step_i n_i instead of ulps */
+    arbor_vec3 step;
+} sample_offset_scale;
+
+static inline float sample__max3(float a, float b, float c)
+{
+    float m = a > b ? a : b;
+    return m > c ? m : c;
+}
+
+static inline sample_offset_scale sample_offset_scale_of(const arbor_mesh *m)
+{
+    float floor = vec3_length(aabb_extent(m->bounds)) * 0x1p-10f;
+    arbor_vec3 lo = m->bounds.lo, hi = m->bounds.hi;
+    arbor_vec3 s = vec3(sample__max3(fabsf(lo.x), fabsf(hi.x), floor), sample__max3(fabsf(lo.y), fabsf(hi.y), floor),
+                        sample__max3(fabsf(lo.z), fabsf(hi.z), floor));
+    sample_offset_scale o = {vec3_scale(s, SAMPLE_OFFSET_NEAR), vec3_scale(s, SAMPLE_OFFSET_STEP)};
+    return o;
+}
+
+/* p moved k ulps toward +infinity (k < 0: toward -infinity), through its
+ * bits: floats of one sign are ordered as their integer bits (magnitudes). */
+static inline float sample__ulps(float p, int32_t k)
+{
+    int32_t bits;
+    memcpy(&bits, &p, sizeof bits);
+    bits += p < 0.0f ? -k : k;
+    memcpy(&p, &bits, sizeof p);
+    return p;
+}
+
+static inline float sample__offset1(float p, float n, float near, float step)
+{
+    if (fabsf(p) < near)
+        return p + step * n;
+    return sample__ulps(p, (int32_t)(SAMPLE_OFFSET_ULPS * n));
+}
+
+/* The origin of a ray leaving the surface at p (from sample_hit_point) on the
+ * side the unit geometric normal n points to. */
+static inline arbor_vec3 sample_offset_ray(arbor_vec3 p, arbor_vec3 n, const sample_offset_scale *s)
+{
+    return vec3(sample__offset1(p.x, n.x, s->near.x, s->step.x), sample__offset1(p.y, n.y, s->near.y, s->step.y),
+                sample__offset1(p.z, n.z, s->near.z, s->step.z));
 }
 
 /* The model's diagonal |B.max - B.min| (PROTOCOL.md's d). */

@@ -1,10 +1,15 @@
 /*
- * test_render.c - the tracer: known images of a quad that fills the view,
- * PROTOCOL.md's primary hits against brute force, PROTOCOL.md's secondary
- * sets, frames identical on 1 and 4 threads, frames in flight together,
- * every mode through PNG and back, cancelling, parameter checks, and
- * regions: byte for byte the same rectangle of the whole frame (in heat mode
- * given the whole frame's heat_scale), invalid regions refused.
+ * test_render.c - the tracer: known images of a quad that fills the view
+ * (written with the sRGB curve), secondary rays' robust offsets (origins off
+ * the plane at any magnitude, no self-shadowing far from the origin, frames
+ * the same at scales 2^-10..2^10, thin gaps that do not leak), glass against
+ * closed forms (a pane's lateral displacement and Fresnel transmittance,
+ * shadows through it, total internal reflection), PROTOCOL.md's primary hits
+ * against brute force, PROTOCOL.md's secondary sets, frames identical on 1
+ * and 4 threads, frames in flight together, every mode through PNG and back,
+ * cancelling, parameter checks, and regions: byte for byte the same
+ * rectangle of the whole frame (in heat mode given the whole frame's
+ * heat_scale), invalid regions refused.
  */
 #include <math.h>
 #include <png.h>
@@ -19,6 +24,7 @@
 #include "arbor/png.h"
 #include "arbor/raysets.h"
 #include "arbor/render.h"
+#include "../../src/render/sampling.h"
 #include "support.h"
 #include "unity.h"
 
@@ -109,6 +115,23 @@ static uint8_t expected_byte(float v)
     return (uint8_t)(fminf(1.0f, fmaxf(0.0f, v)) * 255.0f + 0.5f);
 }
 
+/* The sRGB transfer curve of IEC 61966-2-1, in double, and its inverse. */
+static double srgb(double linear)
+{
+    return linear <= 0.0031308 ? 12.92 * linear : 1.055 * pow(linear, 1.0 / 2.4) - 0.055;
+}
+
+static double srgb_inverse(double encoded)
+{
+    return encoded <= 0.04045 ? encoded / 12.92 : pow((encoded + 0.055) / 1.055, 2.4);
+}
+
+/* The byte a shaded pixel of linear radiance v is written as. */
+static uint8_t shaded_byte(double v)
+{
+    return expected_byte((float)srgb(v));
+}
+
 /* The pixel at the image centre sees the origin; the light is at
  * eye + 0.5 d up = (0, 0.5 d, 5), d the quad's diagonal. */
 static void test_quad_shaded_centre_is_lambert(void)
@@ -128,7 +151,21 @@ static void test_quad_shaded_centre_is_lambert(void)
     float kd[3] = {0.8f, 0.4f, 0.2f};
     for (int c = 0; c < 3; c++) {
         float linear = kd[c] * (0.15f + 0.85f * cosine);
-        TEST_ASSERT_INT_WITHIN(1, expected_byte(powf(linear, 1.0f / 2.2f)), px[c]);
+        TEST_ASSERT_INT_WITHIN(1, shaded_byte(linear), px[c]);
+    }
+    arbor_frame_release(f);
+    /* dark colours, where the sRGB curve's linear toe and gamma 2.2 part:
+     * 0.0022 linear is byte 7 in sRGB, 16 with gamma 2.2; 0.022 is 40, not 45 */
+    m.mats[1].kd = vec3(0.005f, 0.05f, 0.5f);
+    f = render_ok(pool4, a, &p);
+    px = arbor_frame_result_of(f)->rgb + 3 * (32 * 65 + 32);
+    float dark[3] = {0.005f, 0.05f, 0.5f};
+    for (int c = 0; c < 3; c++) {
+        double linear = dark[c] * (0.15 + 0.85 * cosine);
+        TEST_ASSERT_INT_WITHIN(1, shaded_byte(linear), px[c]);
+        if (c < 2) {
+            TEST_ASSERT_TRUE(abs(expected_byte((float)pow(linear, 1.0 / 2.2)) - px[c]) > 3);
+        }
     }
     arbor_frame_release(f);
     arbor_accel_free(a);
@@ -136,7 +173,8 @@ static void test_quad_shaded_centre_is_lambert(void)
 }
 
 /* A mirror facing the camera sends every ray back past the eye into the
- * background, tinted 0.9 (Ks is black). */
+ * background, tinted 0.9 (Ks is black): the background's sRGB bytes are
+ * decoded to linear light, dimmed, and encoded again. */
 static void test_mirror_reflects_the_background(void)
 {
     arbor_mesh m;
@@ -148,11 +186,10 @@ static void test_mirror_reflects_the_background(void)
     p.background = vec3(0.2f, 0.6f, 1.0f);
     arbor_frame *f = render_ok(pool4, a, &p);
     const arbor_frame_result *r = arbor_frame_result_of(f);
-    float tint = powf(0.9f, 1.0f / 2.2f);
     for (int i = 0; i < r->width * r->height; i++) {
-        TEST_ASSERT_INT_WITHIN(1, expected_byte(0.2f * tint), r->rgb[3 * i]);
-        TEST_ASSERT_INT_WITHIN(1, expected_byte(0.6f * tint), r->rgb[3 * i + 1]);
-        TEST_ASSERT_INT_WITHIN(1, expected_byte(1.0f * tint), r->rgb[3 * i + 2]);
+        TEST_ASSERT_INT_WITHIN(1, shaded_byte(0.9 * srgb_inverse(0.2)), r->rgb[3 * i]);
+        TEST_ASSERT_INT_WITHIN(1, shaded_byte(0.9 * srgb_inverse(0.6)), r->rgb[3 * i + 1]);
+        TEST_ASSERT_INT_WITHIN(1, shaded_byte(0.9 * srgb_inverse(1.0)), r->rgb[3 * i + 2]);
     }
     TEST_ASSERT_EQUAL_UINT64(2 * 64 * 48, r->rays); /* primary + one reflection each */
     arbor_frame_release(f);
@@ -179,6 +216,369 @@ static void test_ao_of_an_open_plane_is_white(void)
     const arbor_frame_result *r = arbor_frame_result_of(f);
     assert_every_pixel(r, 255, 255, 255);
     TEST_ASSERT_EQUAL_UINT64(64 * 48 * 6, r->rays);
+    arbor_frame_release(f);
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
+/* ---- robust offsets of secondary rays ---- */
+
+/* Which side of the plane of (a, b, c) q lies on, in the direction of
+ * (b - a) x (c - a): the orientation determinant in long double, whose 64-bit
+ * significand holds the float differences and their products closely
+ * enough that its sign is right for points more than a few ulps off. */
+static int plane_side(arbor_vec3 a, arbor_vec3 b, arbor_vec3 c, arbor_vec3 q)
+{
+    long double ux = (long double)b.x - a.x, uy = (long double)b.y - a.y, uz = (long double)b.z - a.z;
+    long double vx = (long double)c.x - a.x, vy = (long double)c.y - a.y, vz = (long double)c.z - a.z;
+    long double wx = (long double)q.x - a.x, wy = (long double)q.y - a.y, wz = (long double)q.z - a.z;
+    long double det = wx * (uy * vz - uz * vy) + wy * (uz * vx - ux * vz) + wz * (ux * vy - uy * vx);
+    return det > 0.0L ? 1 : det < 0.0L ? -1 : 0;
+}
+
+/* Random triangles at magnitudes from 2^-10 to 1e5 and at scales 2^-10..2^10,
+ * random points on them rebuilt from barycentrics: the offset origin lies
+ * strictly on the side of the plane it was offset to, on either side.
+ * (PROTOCOL.md's p + 1e-4 d n, with p = o + t d from an eye 1.3 d away, puts
+ * 1,320 of the 4,000 origins at 1e5 on the plane or behind it, where floats
+ * are 2^-7 apart and 1e-4 d of a model of diagonal 20 rounds away; 1,953 at
+ * 300 when the model is scaled by 2^-10, measured.) */
+static void test_offset_origin_leaves_the_plane(void)
+{
+    static const float places[] = {0.0f, 0x1p-10f, 1.0f, 300.0f, 1e5f};
+    static const float scales[] = {0x1p-10f, 1.0f, 0x1p10f};
+    test_rng g;
+    test_rng_seed(&g, 7);
+    int tested = 0;
+    for (size_t pi = 0; pi < sizeof places / sizeof places[0]; pi++)
+        for (size_t si = 0; si < sizeof scales / sizeof scales[0]; si++) {
+            arbor_mesh m;
+            arbor_mesh_init(&m);
+            float size = 20.0f * scales[si];
+            for (int v = 0; v < 3 * 200; v++) {
+                arbor_vec3 q = vec3(test_rng_float(&g) - 0.5f, test_rng_float(&g) - 0.5f, test_rng_float(&g) - 0.5f);
+                arbor_mesh_add_vert(&m, vec3_add(vec3(places[pi], -places[pi], places[pi] * 0.5f), vec3_scale(q, size)),
+                                    NULL);
+            }
+            for (uint32_t t = 0; t < 200; t++)
+                arbor_mesh_add_tri(&m, 3 * t, 3 * t + 1, 3 * t + 2, 0, NULL);
+            TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+            sample_offset_scale scale = sample_offset_scale_of(&m);
+            for (uint32_t t = 0; t < m.ntris; t++) {
+                arbor_vec3 a, b, c;
+                arbor_mesh_tri(&m, t, &a, &b, &c);
+                arbor_vec3 n = vec3_normalize(arbor_mesh_tri_normal(&m, t));
+                if (!(vec3_length(n) > 0.5f))
+                    continue; /* degenerate after rounding */
+                for (int k = 0; k < 20; k++) {
+                    float u = test_rng_float(&g), v = test_rng_float(&g) * (1.0f - u);
+                    arbor_hit h = {1.0f, u, v, t};
+                    arbor_vec3 p = sample_hit_point(&m, &h);
+                    TEST_ASSERT_EQUAL_INT(1, plane_side(a, b, c, sample_offset_ray(p, n, &scale)));
+                    TEST_ASSERT_EQUAL_INT(-1, plane_side(a, b, c, sample_offset_ray(p, vec3_scale(n, -1.0f), &scale)));
+                    tested++;
+                }
+            }
+            arbor_mesh_free(&m);
+        }
+    TEST_ASSERT_TRUE(tested > 40000);
+}
+
+/* A plane of 16 x 16 quads tilted toward the protocol camera, vertices
+ * (T + u e1 + v e2) * scale: the tilted position is rounded first, then
+ * scaled exactly by a power of two. */
+static void make_tilted_plane(arbor_mesh *m, float translate, float scale)
+{
+    arbor_mesh_init(m);
+    arbor_vec3 e1 = vec3_normalize(vec3(1.0f, 0.0f, -0.3f)), e2 = vec3_normalize(vec3(0.0f, 1.0f, -0.2f));
+    for (int j = 0; j <= 16; j++)
+        for (int i = 0; i <= 16; i++) {
+            arbor_vec3 q = vec3_add(vec3_scale(e1, -10.0f + 1.25f * (float)i), vec3_scale(e2, -10.0f + 1.25f * (float)j));
+            arbor_mesh_add_vert(m, vec3_scale(vec3_add(vec3(translate, translate, translate), q), scale), NULL);
+        }
+    uint32_t index;
+    arbor_mesh_add_material(m, "white", &index, NULL);
+    m->mats[index].kd = vec3(1.0f, 1.0f, 1.0f);
+    for (uint32_t j = 0; j < 16; j++)
+        for (uint32_t i = 0; i < 16; i++) {
+            uint32_t v = j * 17 + i;
+            arbor_mesh_add_tri(m, v, v + 1, v + 18, index, NULL);
+            arbor_mesh_add_tri(m, v, v + 18, v + 17, index, NULL);
+        }
+    TEST_ASSERT_TRUE(arbor_mesh_finish(m, NULL));
+}
+
+/* A lone plane lit from the side it shows the camera cannot shadow itself:
+ * every pixel on it is brighter than the ambient light alone (byte 108 of
+ * white; lit ones are above 200). Far from the origin (1e5) as near it, and
+ * at scales 2^-10, 1 and 2^10, where the frames are the same bytes: every
+ * offset scales with the model. Measured with PROTOCOL.md's p + 1e-4 d n
+ * (p = o + t d) instead: none of the 5,724 plane pixels shadowed at the
+ * origin, 2,877 of them at 1e5; with Waechter & Binder's fallback constants
+ * fixed rather than in the model's units, the 2^-10 frame differs from the
+ * others in 195 bytes. */
+static void test_no_self_shadowing_far_away_or_at_any_scale(void)
+{
+    static const float places[] = {0.0f, 1e5f};
+    static const float scales[] = {0x1p-10f, 1.0f, 0x1p10f};
+    for (size_t pi = 0; pi < 2; pi++) {
+        uint8_t *first = NULL;
+        for (size_t si = 0; si < 3; si++) {
+            arbor_mesh m;
+            make_tilted_plane(&m, places[pi], scales[si]);
+            arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+            arbor_render_params p;
+            arbor_render_params_init(&p, &m, 160, 120);
+            p.background = vec3(0.0f, 0.0f, 1.0f);
+            arbor_frame *f = render_ok(pool4, a, &p);
+            const arbor_frame_result *r = arbor_frame_result_of(f);
+            int plane = 0, shadowed = 0;
+            for (int i = 0; i < r->width * r->height; i++) {
+                if (r->rgb[3 * i + 2] == 255 && r->rgb[3 * i] == 0)
+                    continue; /* the background */
+                plane++;
+                shadowed += r->rgb[3 * i] < 150;
+            }
+            char what[64];
+            snprintf(what, sizeof what, "at %g, scale %g", (double)places[pi], (double)scales[si]);
+            TEST_ASSERT_TRUE_MESSAGE(plane > 5000, what);
+            TEST_ASSERT_EQUAL_INT_MESSAGE(0, shadowed, what);
+            if (first == NULL) {
+                first = malloc((size_t)r->width * r->height * 3);
+                memcpy(first, r->rgb, (size_t)r->width * r->height * 3);
+            } else {
+                TEST_ASSERT_EQUAL_MEMORY_MESSAGE(first, r->rgb, (size_t)r->width * r->height * 3, what);
+            }
+            arbor_frame_release(f);
+            arbor_accel_free(a);
+            arbor_mesh_free(&m);
+        }
+        free(first);
+    }
+}
+
+/* A floor of 8 x 8 quads at height z0 and a 4 x 4 sheet 1e-3 above it (the
+ * model's diagonal is about 28): rays straight up from points on the floor
+ * are blocked exactly where the sheet is above them. The offset must stay
+ * below the gap: PROTOCOL.md's 1e-4 d = 2.8e-3 starts every ray above the
+ * sheet (all 436 points under it leak, at every scale); so does Waechter &
+ * Binder's fixed 1/65536 fallback at scale 2^-10 (all 436, both floors). */
+static void test_thin_gaps_do_not_leak(void)
+{
+    static const float heights[] = {0.0f, 5.0f};
+    static const float scales[] = {0x1p-10f, 1.0f, 0x1p10f};
+    for (size_t hi = 0; hi < 2; hi++)
+        for (size_t si = 0; si < 3; si++) {
+            float z0 = heights[hi], k = scales[si], gap = 1e-3f;
+            arbor_mesh m;
+            arbor_mesh_init(&m);
+            for (int j = 0; j <= 8; j++)
+                for (int i = 0; i <= 8; i++)
+                    arbor_mesh_add_vert(&m, vec3_scale(vec3(-10.0f + 2.5f * (float)i, -10.0f + 2.5f * (float)j, z0), k),
+                                        NULL);
+            for (uint32_t j = 0; j < 8; j++)
+                for (uint32_t i = 0; i < 8; i++) {
+                    uint32_t v = j * 9 + i;
+                    arbor_mesh_add_tri(&m, v, v + 1, v + 10, 0, NULL);
+                    arbor_mesh_add_tri(&m, v, v + 10, v + 9, 0, NULL);
+                }
+            uint32_t s0 = m.nverts;
+            arbor_mesh_add_vert(&m, vec3_scale(vec3(-2.0f, -2.0f, z0 + gap), k), NULL);
+            arbor_mesh_add_vert(&m, vec3_scale(vec3(2.0f, -2.0f, z0 + gap), k), NULL);
+            arbor_mesh_add_vert(&m, vec3_scale(vec3(2.0f, 2.0f, z0 + gap), k), NULL);
+            arbor_mesh_add_vert(&m, vec3_scale(vec3(-2.0f, 2.0f, z0 + gap), k), NULL);
+            arbor_mesh_add_tri(&m, s0, s0 + 1, s0 + 2, 0, NULL);
+            arbor_mesh_add_tri(&m, s0, s0 + 2, s0 + 3, 0, NULL);
+            TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+            arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+            sample_offset_scale scale = sample_offset_scale_of(&m);
+            test_rng g;
+            test_rng_seed(&g, 3);
+            int under = 0, wrong = 0;
+            for (uint32_t t = 0; t < 128; t++)
+                for (int n = 0; n < 100; n++) {
+                    float u = test_rng_float(&g), v = test_rng_float(&g) * (1.0f - u);
+                    arbor_hit h = {1.0f, u, v, t};
+                    arbor_vec3 p = sample_hit_point(&m, &h);
+                    float x = p.x / k, y = p.y / k;
+                    if (fabsf(fabsf(x) - 2.0f) < 1e-3f || fabsf(fabsf(y) - 2.0f) < 1e-3f)
+                        continue; /* on the sheet's outline: either answer is right */
+                    bool below = fabsf(x) < 2.0f && fabsf(y) < 2.0f;
+                    arbor_ray up = {sample_offset_ray(p, vec3(0.0f, 0.0f, 1.0f), &scale), 0.0f, vec3(0.0f, 0.0f, 1.0f),
+                                    INFINITY};
+                    under += below;
+                    wrong += arbor_accel_occluded(a, &up) != below;
+                }
+            char what[64];
+            snprintf(what, sizeof what, "floor at %g, scale %g", (double)z0, (double)k);
+            TEST_ASSERT_TRUE_MESSAGE(under > 300, what);
+            TEST_ASSERT_EQUAL_INT_MESSAGE(0, wrong, what);
+            arbor_accel_free(a);
+            arbor_mesh_free(&m);
+        }
+}
+
+/* ---- glass ---- */
+
+/* An axis-aligned box as 12 triangles wound counter-clockwise seen from
+ * outside, so that (b - a) x (c - a) points out. */
+static void add_box(arbor_mesh *m, arbor_vec3 lo, arbor_vec3 hi, uint32_t mat)
+{
+    uint32_t v0 = m->nverts;
+    for (int i = 0; i < 8; i++)
+        arbor_mesh_add_vert(m, vec3(i & 1 ? hi.x : lo.x, i & 2 ? hi.y : lo.y, i & 4 ? hi.z : lo.z), NULL);
+    static const uint32_t quads[6][4] = {{0, 4, 6, 2}, {1, 3, 7, 5}, {0, 1, 5, 4},
+                                         {2, 6, 7, 3}, {0, 2, 3, 1}, {4, 5, 7, 6}};
+    for (int q = 0; q < 6; q++) {
+        arbor_mesh_add_tri(m, v0 + quads[q][0], v0 + quads[q][1], v0 + quads[q][2], mat, NULL);
+        arbor_mesh_add_tri(m, v0 + quads[q][0], v0 + quads[q][2], v0 + quads[q][3], mat, NULL);
+    }
+}
+
+/* The exact Fresnel reflectance of unpolarised light going from air into
+ * index n at cos_i, in double. */
+static double fresnel_from_air(double cos_i, double n)
+{
+    double sin_t = sqrt(1.0 - cos_i * cos_i) / n, cos_t = sqrt(1.0 - sin_t * sin_t);
+    double rs = (cos_i - n * cos_t) / (cos_i + n * cos_t);
+    double rp = (n * cos_i - cos_t) / (n * cos_i + cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+#define PANE_FRONT 1.0f
+#define PANE_BACK (-2.0f)
+#define PANE_INDEX 1.5f
+#define WALL_Z (-4.0f)
+#define WALL_EDGE 6.0f
+#define WALL_KD 0.8f
+
+/* A pane (a box 3 thick, index 1.5, opacity d, black Kd) between the eye at
+ * z = 5 and a wall at z = -4 whose diffuse Kd is red left of x = 6 and green
+ * right of it. */
+static void make_pane_scene(arbor_mesh *m, float d)
+{
+    arbor_mesh_init(m);
+    uint32_t fallback, glass, red, green;
+    arbor_mesh_add_material(m, "default", &fallback, NULL);
+    arbor_mesh_add_material(m, "glass", &glass, NULL);
+    arbor_mesh_add_material(m, "red", &red, NULL);
+    arbor_mesh_add_material(m, "green", &green, NULL);
+    m->mats[glass].kd = vec3(0.0f, 0.0f, 0.0f);
+    m->mats[glass].d = d;
+    m->mats[glass].ni = PANE_INDEX;
+    m->mats[red].kd = vec3(WALL_KD, 0.0f, 0.0f);
+    m->mats[green].kd = vec3(0.0f, WALL_KD, 0.0f);
+    add_box(m, vec3(-40.0f, -40.0f, PANE_BACK), vec3(40.0f, 40.0f, PANE_FRONT), glass);
+    uint32_t v = m->nverts;
+    float xs[3] = {-40.0f, WALL_EDGE, 40.0f};
+    for (int i = 0; i < 3; i++) {
+        arbor_mesh_add_vert(m, vec3(xs[i], -40.0f, WALL_Z), NULL);
+        arbor_mesh_add_vert(m, vec3(xs[i], 40.0f, WALL_Z), NULL);
+    }
+    arbor_mesh_add_tri(m, v, v + 2, v + 3, red, NULL);
+    arbor_mesh_add_tri(m, v, v + 3, v + 1, red, NULL);
+    arbor_mesh_add_tri(m, v + 2, v + 4, v + 5, green, NULL);
+    arbor_mesh_add_tri(m, v + 2, v + 5, v + 3, green, NULL);
+    TEST_ASSERT_TRUE(arbor_mesh_finish(m, NULL));
+}
+
+/* Each pixel's ray through the pane, in closed form: it leaves the pane
+ * parallel to itself, displaced sideways by t sin(theta) (1 - cos(theta) /
+ * sqrt(n^2 - sin^2(theta))), so on the wall it lands that over cos(theta)
+ * closer to the foot of the normal than the straight ray would. Its light is
+ * the wall's Lambert term under a shadow ray that crosses the pane's two
+ * faces, times the view's two crossings: each passes (1 - d)(1 - R) with R
+ * the Fresnel reflectance at that angle. With 2 bounces nothing else
+ * reaches the eye (the background is black, the pane's Kd too). The pixels
+ * where the straight ray would land on the other colour show that the
+ * refraction is not skipped. */
+static void test_glass_pane_displaces_and_dims_as_in_closed_form(void)
+{
+    static const float opacities[] = {0.0f, 0.25f};
+    for (int oi = 0; oi < 2; oi++) {
+        float d = opacities[oi];
+        arbor_mesh m;
+        make_pane_scene(&m, d);
+        arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+        arbor_render_params p;
+        arbor_render_params_init(&p, &m, 160, 120);
+        arbor_camera_look_at(&p.camera, vec3(0, 0, 5), vec3(0, 0, 0), vec3(0, 1, 0), 90.0f, 160, 120);
+        p.background = vec3(0.0f, 0.0f, 0.0f);
+        p.max_bounces = 2;
+        arbor_frame *f = render_ok(pool4, a, &p);
+        const arbor_frame_result *r = arbor_frame_result_of(f);
+        double diag = vec3_length(aabb_extent(m.bounds));
+        arbor_vec3 light = vec3_add(p.camera.eye, vec3_scale(p.camera.up, 0.5f * (float)diag));
+        double t = PANE_FRONT - PANE_BACK, n = PANE_INDEX;
+        int checked = 0, moved = 0;
+        for (int y = 0; y < r->height; y++)
+            for (int x = 0; x < r->width; x++) {
+                arbor_ray ray = arbor_camera_ray(&p.camera, (float)x + 0.5f, (float)y + 0.5f);
+                double len = sqrt((double)ray.d.x * ray.d.x + (double)ray.d.y * ray.d.y + (double)ray.d.z * ray.d.z);
+                double dx = ray.d.x / len, dy = ray.d.y / len, dz = ray.d.z / len;
+                double cos_v = -dz, sin_v = sqrt(1.0 - cos_v * cos_v);
+                double reach = (WALL_Z - ray.o.z) / dz;
+                double straight_x = ray.o.x + dx * reach, straight_y = ray.o.y + dy * reach;
+                double shift = t * sin_v * (1.0 - cos_v / sqrt(n * n - sin_v * sin_v)) / cos_v;
+                double h = sqrt(dx * dx + dy * dy);
+                double wx = straight_x - (h > 0.0 ? shift * dx / h : 0.0);
+                double wy = straight_y - (h > 0.0 ? shift * dy / h : 0.0);
+                if (fabs(wx - WALL_EDGE) < 1e-3)
+                    continue;
+                moved += (wx < WALL_EDGE) != (straight_x < WALL_EDGE);
+                double lx = light.x - wx, ly = light.y - wy, lz = light.z - WALL_Z;
+                double cos_l = lz / sqrt(lx * lx + ly * ly + lz * lz);
+                double pass_v = (1.0 - d) * (1.0 - fresnel_from_air(cos_v, n));
+                double pass_l = (1.0 - d) * (1.0 - fresnel_from_air(cos_l, n));
+                double value = pass_v * pass_v * WALL_KD * (0.15 + 0.85 * cos_l * pass_l * pass_l);
+                const uint8_t *px = r->rgb + 3 * (y * r->width + x);
+                int lit = wx < WALL_EDGE ? 0 : 1;
+                TEST_ASSERT_INT_WITHIN(1, shaded_byte(value), px[lit]);
+                TEST_ASSERT_EQUAL_UINT8(0, px[1 - lit]);
+                TEST_ASSERT_EQUAL_UINT8(0, px[2]);
+                checked++;
+            }
+        TEST_ASSERT_TRUE(checked > 19000);
+        TEST_ASSERT_TRUE(moved > 500); /* 878 */
+        arbor_frame_release(f);
+        arbor_accel_free(a);
+        arbor_mesh_free(&m);
+    }
+}
+
+/* Seen from inside the pane (the eye at z = -1, looking at its back face
+ * 1 below), rays meeting the face beyond the critical angle, sin = 1 / n,
+ * are reflected whole: with 1 bounce their reflection ends on the pane's
+ * front face (black Kd), so those pixels are black, and every other one sees
+ * the wall through the face. */
+static void test_glass_total_internal_reflection(void)
+{
+    arbor_mesh m;
+    make_pane_scene(&m, 0.0f);
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p;
+    arbor_render_params_init(&p, &m, 160, 120);
+    arbor_camera_look_at(&p.camera, vec3(0, 0, -1), vec3(0, 0, -2), vec3(0, 1, 0), 90.0f, 160, 120);
+    p.background = vec3(0.0f, 0.0f, 0.0f);
+    p.max_bounces = 1;
+    arbor_frame *f = render_ok(pool4, a, &p);
+    const arbor_frame_result *r = arbor_frame_result_of(f);
+    double critical = asin(1.0 / PANE_INDEX);
+    int reflected = 0, through = 0;
+    for (int y = 0; y < r->height; y++)
+        for (int x = 0; x < r->width; x++) {
+            arbor_ray ray = arbor_camera_ray(&p.camera, (float)x + 0.5f, (float)y + 0.5f);
+            double angle = acos(-ray.d.z / vec3_length(ray.d));
+            if (fabs(angle - critical) < 1e-3)
+                continue;
+            const uint8_t *px = r->rgb + 3 * (y * r->width + x);
+            bool black = px[0] == 0 && px[1] == 0 && px[2] == 0;
+            TEST_ASSERT_EQUAL_INT(angle > critical, black);
+            reflected += black;
+            through += !black;
+        }
+    TEST_ASSERT_TRUE(reflected > 1000);
+    TEST_ASSERT_TRUE(through > 1000);
     arbor_frame_release(f);
     arbor_accel_free(a);
     arbor_mesh_free(&m);
@@ -317,18 +717,21 @@ static void test_protocol_secondary_sets(void)
     arbor_mesh_free(&m);
 }
 
-/* A soup of random triangles, every fifth a mirror and every third red, so
- * every code path of every mode is taken. */
+/* A soup of random triangles, every fifth a mirror, every seventh glass and
+ * every third red, so every code path of every mode is taken. */
 static void make_soup(arbor_mesh *m)
 {
     test_random_soup(m, 3000, 11);
-    uint32_t mirror, red;
+    uint32_t mirror, red, glass;
     arbor_mesh_add_material(m, "mirror", &mirror, NULL);
     arbor_mesh_add_material(m, "red", &red, NULL);
+    arbor_mesh_add_material(m, "glass", &glass, NULL);
     m->mats[mirror].illum = 3;
     m->mats[red].kd = vec3(0.9f, 0.1f, 0.1f);
+    m->mats[glass].d = 0.2f;
+    m->mats[glass].ni = 1.5f;
     for (uint32_t t = 0; t < m->ntris; t++)
-        m->tri_mat[t] = t % 5 == 0 ? mirror : t % 3 == 0 ? red : 0;
+        m->tri_mat[t] = t % 5 == 0 ? mirror : t % 7 == 0 ? glass : t % 3 == 0 ? red : 0;
 }
 
 static void soup_params(arbor_render_params *p, const arbor_mesh *m, arbor_render_mode mode, int spp)
@@ -686,6 +1089,11 @@ int main(void)
     RUN_TEST(test_quad_shaded_centre_is_lambert);
     RUN_TEST(test_mirror_reflects_the_background);
     RUN_TEST(test_ao_of_an_open_plane_is_white);
+    RUN_TEST(test_offset_origin_leaves_the_plane);
+    RUN_TEST(test_no_self_shadowing_far_away_or_at_any_scale);
+    RUN_TEST(test_thin_gaps_do_not_leak);
+    RUN_TEST(test_glass_pane_displaces_and_dims_as_in_closed_form);
+    RUN_TEST(test_glass_total_internal_reflection);
     RUN_TEST(test_protocol_primary_hits_agree_with_brute_force);
     RUN_TEST(test_protocol_secondary_sets);
     RUN_TEST(test_one_thread_and_four_threads_give_the_same_bytes);
