@@ -59,7 +59,7 @@ TEST_BIN = $(TEST_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 UNITY    = build/deps/unity/src
 TEST_SUPPORT_OBJ = $(BUILD)/obj/tests/unit/support.o $(BUILD)/obj/unity.o
 
-.PHONY: all deps run test unit models bench bench-embree asan fuzz lint loadtest cluster clean
+.PHONY: all deps run test unit models bench bench-embree asan fuzz lint loadtest cluster soak clean
 # Keep intermediate objects: deleting them would also print "rm ..." after the
 # test summary, which must stay the last line of make test.
 .SECONDARY:
@@ -94,6 +94,11 @@ $(BUILD)/obj/tests/unit/%.o: tests/unit/%.c | deps
 $(BUILD)/tests/%: $(BUILD)/obj/tests/unit/%.o $(TEST_SUPPORT_OBJ) $(BUILD)/libarbor.a
 	@mkdir -p $(dir $@)
 	$(CC) $(ARBOR_CFLAGS) -o $@ $^ $(LDLIBS)
+
+# test_alloc_fail alone links the allocator that fails on demand (it defines
+# malloc for the whole process); dlsym finds the allocator it wraps.
+$(BUILD)/tests/test_alloc_fail: $(BUILD)/obj/tests/unit/alloc_hook.o
+$(BUILD)/tests/test_alloc_fail: LDLIBS += -ldl
 
 # The fuzz targets of tests/fuzz. Linked with replay.c they are test programs
 # that replay the target's committed corpus (every regression input) in every
@@ -157,6 +162,11 @@ cluster: $(BUILD)/arbord
 # wrk against a daemon of its own (tests/load/run.sh; LOAD_SECONDS=30 by default).
 loadtest: $(BUILD)/arbord
 	@ARBORD=$(abspath $(BUILD)/arbord) tests/load/run.sh
+
+# One daemon under mixed load for SOAK_SECONDS (600) with a report each minute (tests/soak/run.py;
+# not part of make test).
+soak: $(BUILD)/arbord
+	@ARBORD=$(abspath $(BUILD)/arbord) tests/soak/run.py
 
 # The small models are committed in models/; SIZE=large writes multi-million-triangle
 # versions to build/models-large instead (never committed, not rendered by make run).
