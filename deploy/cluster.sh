@@ -9,8 +9,9 @@
 # ports instead. nginx (Debian's package, installed when missing) listens on
 # 127.0.0.1:PORT and spreads requests over them with
 # deploy/nginx.conf.template. Every daemon serves one models folder,
-# STATE/models (seeded with links to the repository's models/), as hosts
-# would share one over NFS.
+# STATE/models (seeded with copies of the repository's models/: the loader
+# refuses a material library that resolves outside the model's folder, so
+# links would lose their .mtl), as hosts would share one over NFS.
 #
 # A daemon that exits is started again, as systemd's Restart= does, so a
 # node that is killed rejoins. Ctrl-C (SIGINT) or SIGTERM stops every
@@ -75,7 +76,7 @@ mkdir -p "$state/models" "$state/nginx"
 state=$(cd "$state" && pwd)
 if [ -z "$(ls -A "$state/models")" ]; then
     for f in "$seed"/*.obj "$seed"/*.obj.gz "$seed"/*.ply "$seed"/*.ply.gz "$seed"/*.mtl; do
-        [ -e "$f" ] && ln -s "$(cd "$(dirname "$f")" && pwd)/$(basename "$f")" "$state/models/"
+        [ -e "$f" ] && cp "$f" "$state/models/"
     done
 fi
 [ -s "$state/token" ] || (umask 077 && head -c 18 /dev/urandom | base64 | tr -d '/+=' >"$state/token")
