@@ -26,6 +26,9 @@
  *                from fractal value noise; grass, rock and snow by height.
  *   sphere       the unit icosphere subdivided k times: a closed 2-manifold
  *                with shared vertices (10 * 4^k + 2) and 20 * 4^k triangles.
+ *   glass        the Cornell box (n 1) with the mirror tall box and, for the
+ *                short one, a glass icosphere of radius 0.3 on the floor
+ *                (MTL d 0, Ni 1.5) subdivided k times; 24 + 20 * 4^k triangles.
  *
  * Triangles are wound counter-clockwise seen from outside (from inside the
  * Cornell room for its walls).
@@ -45,12 +48,13 @@ typedef enum {
     ARBOR_GEN_SPHEREFLAKE,
     ARBOR_GEN_HEIGHTFIELD,
     ARBOR_GEN_SPHERE,
+    ARBOR_GEN_GLASS,
     ARBOR_GEN_COUNT
 } arbor_gen_kind;
 
 /* A model's size. Which fields a kind reads: cornell n; menger level;
  * sphereflake level and n (the root's subdivisions); heightfield n; sphere
- * level (subdivisions). A field a kind does not read must be
+ * and glass level (subdivisions). A field a kind does not read must be
  * ARBOR_GEN_UNSET; a field it reads may be unset to take the small preset. */
 #define ARBOR_GEN_UNSET (-1)
 typedef struct {
@@ -72,17 +76,18 @@ arbor_gen_params arbor_gen_preset(arbor_gen_kind kind, bool large);
 bool arbor_gen(arbor_gen_kind kind, arbor_gen_params params, arbor_mesh *m, arbor_err *e);
 
 /* The generators themselves; ranges: n 1..1024, level 0..5, root
- * subdivisions 0..8, heightfield n 1..4096, sphere level 0..9. */
+ * subdivisions 0..8, heightfield n 1..4096, sphere and glass level 0..9. */
 bool arbor_gen_cornell(arbor_mesh *m, int n, arbor_err *e);
 bool arbor_gen_menger(arbor_mesh *m, int level, arbor_err *e);
 bool arbor_gen_sphereflake(arbor_mesh *m, int level, int root_subdivisions, arbor_err *e);
 bool arbor_gen_heightfield(arbor_mesh *m, int n, arbor_err *e);
 bool arbor_gen_sphere(arbor_mesh *m, int subdivisions, arbor_err *e);
+bool arbor_gen_glass(arbor_mesh *m, int subdivisions, arbor_err *e);
 
 /* Writes m (a finished mesh) as Wavefront OBJ to path ("v x y z" with %.7g, so positions come
  * back within 1e-6 relative; "f a b c", 1-based). When a triangle uses a
  * material other than mats[0], it also writes the materials that triangles
- * use (newmtl, Kd, Ks, Ns, Ke, d, illum) to a .mtl beside it (path with its
+ * use (newmtl, Kd, Ks, Ns, Ke, d, Ni where above 0, illum) to a .mtl beside it (path with its
  * ".obj" replaced by ".mtl"), referenced by mtllib and usemtl. comment (may be
  * NULL) becomes a "# " line at the top. ARBOR_ERR_IO names the file that
  * could not be created or written (a missing directory, a full disk). */

@@ -265,26 +265,31 @@ static placement block_placement(float x, float z, float degrees)
     return pl;
 }
 
-static bool cornell_parts(builder *b, int n, const uint32_t *mat)
+/* The room, a box seen from inside, open towards +z (the viewer), and its light. */
+static bool cornell_room(builder *b, int n, const uint32_t *mat)
 {
-    /* the room is a box seen from inside, open towards +z (the viewer) */
     const uint32_t room[FACE_COUNT] = {mat[CB_RED], mat[CB_GREEN], mat[CB_WHITE],
                                        mat[CB_WHITE], mat[CB_WHITE], mat[CB_WHITE]};
     if (!add_box(b, NULL, vec3(-1, 0, -1), vec3(1, 2, 1), ALL_FACES & ~(1u << FACE_PZ), n, true, room))
         return false;
     /* the light hangs just below the ceiling (as in the original box), facing down */
-    if (!add_face_grid(b, NULL, vec3(-0.25f, 1.995f, -0.25f), vec3(0.25f, 1.995f, 0.25f), FACE_NY, n, false,
-                       mat[CB_LIGHT]))
-        return false;
-    uint32_t white[FACE_COUNT], mirror[FACE_COUNT];
-    for (int f = 0; f < FACE_COUNT; f++) {
-        white[f] = mat[CB_WHITE];
-        mirror[f] = mat[CB_MIRROR];
-    }
-    placement short_block = block_placement(0.33f, 0.3f, -17.0f);
-    placement tall_block = block_placement(-0.35f, -0.3f, 17.0f);
-    return add_box(b, &short_block, vec3(-0.3f, 0, -0.3f), vec3(0.3f, 0.6f, 0.3f), ALL_FACES, n, false, white) &&
-           add_box(b, &tall_block, vec3(-0.3f, 0, -0.3f), vec3(0.3f, 1.2f, 0.3f), ALL_FACES, n, false, mirror);
+    return add_face_grid(b, NULL, vec3(-0.25f, 1.995f, -0.25f), vec3(0.25f, 1.995f, 0.25f), FACE_NY, n, false,
+                         mat[CB_LIGHT]);
+}
+
+static bool cornell_block(builder *b, int n, bool tall, uint32_t mat)
+{
+    uint32_t faces[FACE_COUNT];
+    for (int f = 0; f < FACE_COUNT; f++)
+        faces[f] = mat;
+    placement pl = tall ? block_placement(-0.35f, -0.3f, 17.0f) : block_placement(0.33f, 0.3f, -17.0f);
+    return add_box(b, &pl, vec3(-0.3f, 0, -0.3f), vec3(0.3f, tall ? 1.2f : 0.6f, 0.3f), ALL_FACES, n, false, faces);
+}
+
+static bool cornell_parts(builder *b, int n, const uint32_t *mat)
+{
+    return cornell_room(b, n, mat) && cornell_block(b, n, false, mat[CB_WHITE]) &&
+           cornell_block(b, n, true, mat[CB_MIRROR]);
 }
 
 bool arbor_gen_cornell(arbor_mesh *m, int n, arbor_err *e)
@@ -427,6 +432,33 @@ bool arbor_gen_sphere(arbor_mesh *m, int subdivisions, arbor_err *e)
     builder b;
     builder_init(&b, m, e);
     bool ok = add_materials(m, &sphere_material, 1, &s.mat, e) && add_icosphere(&b, &s, subdivisions);
+    builder_free(&b);
+    return ok && arbor_mesh_finish(m, e);
+}
+
+/* ---- a glass sphere in the Cornell box ---- */
+
+/* Clear glass: MTL d 0 (no opaque fraction), Ni 1.5, illum 7 (MTL's
+ * refraction with Fresnel); Kd black, what the
+ * renderer shows of it when it runs out of bounces inside. */
+static const material_spec glass_material = {"glass", {0, 0, 0}, {0, 0, 0}, {0, 0, 0}, 1.0f, 7};
+
+bool arbor_gen_glass(arbor_mesh *m, int subdivisions, arbor_err *e)
+{
+    arbor_mesh_init(m);
+    if (!check_range("glass", "level", subdivisions, 0, 9, e))
+        return false;
+    uint32_t mat[CB_COUNT];
+    sphere_spec s = {vec3(0.3f, 0.3f, 0.3f), 0.3f, 0};
+    builder b;
+    builder_init(&b, m, e);
+    bool ok = add_materials(m, cornell_materials, CB_COUNT, mat, e) && add_material(m, &glass_material, &s.mat, e);
+    if (ok) {
+        m->mats[s.mat].d = 0.0f;
+        m->mats[s.mat].ni = 1.5f;
+    }
+    ok = ok && cornell_room(&b, 1, mat) && add_icosphere(&b, &s, subdivisions) &&
+         cornell_block(&b, 1, true, mat[CB_MIRROR]);
     builder_free(&b);
     return ok && arbor_mesh_finish(m, e);
 }
@@ -589,6 +621,9 @@ static const struct {
                                {3, 3}, {5, 5}},
     [ARBOR_GEN_HEIGHTFIELD] = {"heightfield", "fractal terrain; n: n x n quads", {U, 128}, {U, 1024}},
     [ARBOR_GEN_SPHERE] = {"sphere", "closed icosphere with shared vertices; level: subdivisions", {4, U}, {8, U}},
+    [ARBOR_GEN_GLASS] = {"glass",
+                         "Cornell box with a glass sphere and the mirror block; level: the sphere's subdivisions",
+                         {3, U}, {8, U}},
 };
 #undef U
 
@@ -645,6 +680,7 @@ bool arbor_gen(arbor_gen_kind kind, arbor_gen_params params, arbor_mesh *m, arbo
     case ARBOR_GEN_SPHEREFLAKE: return arbor_gen_sphereflake(m, p.level, p.n, e);
     case ARBOR_GEN_HEIGHTFIELD: return arbor_gen_heightfield(m, p.n, e);
     case ARBOR_GEN_SPHERE: return arbor_gen_sphere(m, p.level, e);
+    case ARBOR_GEN_GLASS: return arbor_gen_glass(m, p.level, e);
     case ARBOR_GEN_COUNT: break;
     }
     return false;
@@ -717,9 +753,13 @@ static bool write_mtl(const arbor_mesh *m, const bool *used, const char *path, c
         if (!used[i])
             continue;
         const arbor_material *mat = &m->mats[i];
-        fprintf(f, "\nnewmtl %s\nKd %.6g %.6g %.6g\nKs %.6g %.6g %.6g\nNs %.6g\nKe %.6g %.6g %.6g\nd %.6g\nillum %d\n",
+        fprintf(f, "\nnewmtl %s\nKd %.6g %.6g %.6g\nKs %.6g %.6g %.6g\nNs %.6g\nKe %.6g %.6g %.6g\nd %.6g\n",
                 mat->name, mat->kd.x, mat->kd.y, mat->kd.z, mat->ks.x, mat->ks.y, mat->ks.z, mat->ns, mat->ke.x,
-                mat->ke.y, mat->ke.z, mat->d, mat->illum);
+                mat->ke.y, mat->ke.z, mat->d);
+        /* only where given, so the files of materials without one stay as they were */
+        if (mat->ni > 0.0f)
+            fprintf(f, "Ni %.6g\n", mat->ni);
+        fprintf(f, "illum %d\n", mat->illum);
     }
     return close_written(f, path, e);
 }
