@@ -179,8 +179,8 @@ static const arbor_material *material_of(const arbor_frame *f, uint32_t tri)
 static sample_surface surface_at(const arbor_frame *f, const arbor_ray *r, const arbor_hit *h)
 {
     sample_surface s;
-    s.p = sample_hit_point(f->mesh, h);
-    s.n = vec3_normalize(arbor_mesh_tri_normal(f->mesh, h->tri));
+    s.p = sample_hit_point(f->mesh, h, &s.n);
+    s.n = vec3_normalize(s.n);
     if (vec3_dot(s.n, r->d) > 0.0f)
         s.n = vec3_scale(s.n, -1.0f);
     s.origin = sample_offset_ray(s.p, s.n, &f->offset);
@@ -294,33 +294,30 @@ static bool is_black(arbor_vec3 c)
     return !(c.x > 0.0f || c.y > 0.0f || c.z > 0.0f);
 }
 
-/* A ray still to follow in shade_shaded, with what it carries to the pixel. */
+/* A ray followed by shade_shaded, with what it carries to the pixel. */
 typedef struct {
     arbor_ray r;
     arbor_vec3 weight;
     int bounce;
 } shaded_path;
 
-/* Every path has at most two children (glass reflects and refracts), each a
- * bounce deeper, and is followed depth first: at most one waiting sibling
- * per bounce, plus the path in hand. */
-#define SHADED_STACK (ARBOR_MAX_BOUNCES + 1)
-
-static void push_path(shaded_path *stack, int *n, arbor_vec3 o, arbor_vec3 d, arbor_vec3 weight, int bounce)
+static shaded_path path_from(arbor_vec3 o, arbor_vec3 d, arbor_vec3 weight, int bounce)
 {
-    if (is_black(weight))
-        return;
     shaded_path q = {{o, 0.0f, d, INFINITY}, weight, bounce};
-    stack[(*n)++] = q;
+    return q;
 }
 
 /* A hit on glass within the bounce budget: the opaque fraction d of the
  * surface is shaded as usual into *sum, the clear rest splits by Fresnel into
  * a reflected and a refracted path (only the reflected one under total
  * internal reflection). The side is the winding's: a ray against the
- * geometric normal (b - a) x (c - a) enters, one along it leaves. */
-static void shade_glass(const arbor_frame *f, const shaded_path *q, const arbor_hit *h, const sample_surface *s,
-                        const arbor_material *mat, shaded_path *stack, int *n, arbor_vec3 *sum, tile_tally *t)
+ * geometric normal (b - a) x (c - a) enters, one along it leaves. *q becomes
+ * the refracted path, or the reflected one when it is the only one carrying
+ * light; a reflected path that has to wait goes on `waiting`. False when
+ * neither carries any. */
+static bool shade_glass(const arbor_frame *f, shaded_path *q, const arbor_hit *h, const sample_surface *s,
+                        const arbor_material *mat, shaded_path *waiting, int *nwaiting, arbor_vec3 *sum,
+                        tile_tally *t)
 {
     float d = clamp01(mat->d);
     if (d > 0.0f) {
@@ -335,45 +332,57 @@ static void shade_glass(const arbor_frame *f, const shaded_path *q, const arbor_
     float reflectance = fresnel(cos_i, eta, &cos_t);
     arbor_vec3 clear = vec3_scale(q->weight, 1.0f - d);
     arbor_vec3 mirrored = vec3_add(dir, vec3_scale(s->n, 2.0f * cos_i));
-    push_path(stack, n, s->origin, mirrored, vec3_scale(clear, reflectance), q->bounce + 1);
-    if (reflectance < 1.0f) {
-        arbor_vec3 refracted = vec3_add(vec3_scale(dir, eta), vec3_scale(s->n, eta * cos_i - cos_t));
-        push_path(stack, n, origin_behind(f, s), refracted, vec3_scale(clear, 1.0f - reflectance), q->bounce + 1);
+    shaded_path reflected = path_from(s->origin, mirrored, vec3_scale(clear, reflectance), q->bounce + 1);
+    arbor_vec3 through = vec3_scale(clear, 1.0f - reflectance);
+    if (is_black(through)) {
+        *q = reflected;
+        return !is_black(reflected.weight);
     }
+    if (!is_black(reflected.weight))
+        waiting[(*nwaiting)++] = reflected;
+    arbor_vec3 refracted = vec3_add(vec3_scale(dir, eta), vec3_scale(s->n, eta * cos_i - cos_t));
+    *q = path_from(origin_behind(f, s), refracted, through, q->bounce + 1);
+    return true;
 }
 
-/* Follows mirror and glass bounces depth first, without recursion; a path's
- * weight is the product of the tints and Fresnel factors met so far. Linear
- * radiance. */
+/* Follows one path at a time through mirrors and glass, without recursion;
+ * a path's weight is the product of the tints and Fresnel factors met so
+ * far. Where glass splits a path, the reflected part waits until the
+ * refracted one has ended; the waiting paths' bounces grow from the bottom of
+ * the list up, so it never holds more than max_bounces. Linear radiance. */
 static arbor_vec3 shade_shaded(const arbor_frame *f, arbor_ray r, tile_tally *t)
 {
-    shaded_path stack[SHADED_STACK];
-    int n = 0;
-    push_path(stack, &n, r.o, r.d, grey(1.0f), 0);
+    shaded_path waiting[ARBOR_MAX_BOUNCES];
+    int nwaiting = 0;
+    shaded_path q = path_from(r.o, r.d, grey(1.0f), 0);
     arbor_vec3 sum = grey(0.0f);
-    while (n > 0) {
-        shaded_path q = stack[--n];
+    for (;;) {
         arbor_hit h;
         bool hit = q.bounce == 0 ? trace_primary(f, &q.r, &h, t) : trace_secondary(f, &q.r, &h, t);
+        bool goes_on = false;
         if (!hit) {
             sum = vec3_add(sum, vec3_mul(q.weight, f->background_linear));
-            continue;
+        } else {
+            const arbor_material *mat = material_of(f, h.tri);
+            sample_surface s = surface_at(f, &q.r, &h);
+            bool bounces_left = q.bounce < f->params.max_bounces;
+            if (bounces_left && is_translucent(mat)) {
+                goes_on = shade_glass(f, &q, &h, &s, mat, waiting, &nwaiting, &sum, t);
+            } else if (bounces_left && arbor_material_is_mirror(mat)) {
+                arbor_vec3 d = vec3_sub(q.r.d, vec3_scale(s.n, 2.0f * vec3_dot(q.r.d, s.n)));
+                q = path_from(s.origin, d, vec3_mul(q.weight, mirror_tint(mat)), q.bounce + 1);
+                goes_on = true;
+            } else {
+                arbor_vec3 opaque = vec3_add(mat->ke, lambert(f, &s, shading_normal(f, &h, &s), mat, t));
+                sum = vec3_add(sum, vec3_mul(q.weight, opaque));
+            }
         }
-        const arbor_material *mat = material_of(f, h.tri);
-        sample_surface s = surface_at(f, &q.r, &h);
-        if (q.bounce < f->params.max_bounces && is_translucent(mat)) {
-            shade_glass(f, &q, &h, &s, mat, stack, &n, &sum, t);
+        if (goes_on)
             continue;
-        }
-        if (q.bounce < f->params.max_bounces && arbor_material_is_mirror(mat)) {
-            arbor_vec3 d = vec3_sub(q.r.d, vec3_scale(s.n, 2.0f * vec3_dot(q.r.d, s.n)));
-            push_path(stack, &n, s.origin, d, vec3_mul(q.weight, mirror_tint(mat)), q.bounce + 1);
-            continue;
-        }
-        arbor_vec3 opaque = vec3_add(mat->ke, lambert(f, &s, shading_normal(f, &h, &s), mat, t));
-        sum = vec3_add(sum, vec3_mul(q.weight, opaque));
+        if (nwaiting == 0)
+            return sum;
+        q = waiting[--nwaiting];
     }
-    return sum;
 }
 
 static arbor_vec3 shade_normals(const arbor_frame *f, arbor_ray r, tile_tally *t)

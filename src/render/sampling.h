@@ -98,11 +98,14 @@ static inline sample_surface sample_surface_at(const arbor_mesh *m, const arbor_
 /* The hit point as the barycentric mix w a + u b + v c of the corners: an
  * affine combination of the corners lies on their plane whatever the error in
  * (u, v), so it is off the plane only by the rounding of this sum, a few ulps
- * of the corners' coordinates, however far the ray came. */
-static inline arbor_vec3 sample_hit_point(const arbor_mesh *m, const arbor_hit *h)
+ * of the corners' coordinates, however far the ray came. *normal gets the
+ * triangle's unnormalised geometric normal (b - a) x (c - a), as
+ * arbor_mesh_tri_normal gives it, from the same fetch of the corners. */
+static inline arbor_vec3 sample_hit_point(const arbor_mesh *m, const arbor_hit *h, arbor_vec3 *normal)
 {
     arbor_vec3 a, b, c;
     arbor_mesh_tri(m, h->tri, &a, &b, &c);
+    *normal = vec3_cross(vec3_sub(b, a), vec3_sub(c, a));
     float w = 1.0f - h->u - h->v;
     return vec3_add(vec3_add(vec3_scale(a, w), vec3_scale(b, h->u)), vec3_scale(c, h->v));
 }

@@ -273,7 +273,9 @@ static void test_offset_origin_leaves_the_plane(void)
                 for (int k = 0; k < 20; k++) {
                     float u = test_rng_float(&g), v = test_rng_float(&g) * (1.0f - u);
                     arbor_hit h = {1.0f, u, v, t};
-                    arbor_vec3 p = sample_hit_point(&m, &h);
+                    arbor_vec3 normal, expected = arbor_mesh_tri_normal(&m, t);
+                    arbor_vec3 p = sample_hit_point(&m, &h, &normal);
+                    TEST_ASSERT_EQUAL_MEMORY(&expected, &normal, sizeof normal);
                     TEST_ASSERT_EQUAL_INT(1, plane_side(a, b, c, sample_offset_ray(p, n, &scale)));
                     TEST_ASSERT_EQUAL_INT(-1, plane_side(a, b, c, sample_offset_ray(p, vec3_scale(n, -1.0f), &scale)));
                     tested++;
@@ -293,7 +295,8 @@ static void make_tilted_plane(arbor_mesh *m, float translate, float scale)
     arbor_vec3 e1 = vec3_normalize(vec3(1.0f, 0.0f, -0.3f)), e2 = vec3_normalize(vec3(0.0f, 1.0f, -0.2f));
     for (int j = 0; j <= 16; j++)
         for (int i = 0; i <= 16; i++) {
-            arbor_vec3 q = vec3_add(vec3_scale(e1, -10.0f + 1.25f * (float)i), vec3_scale(e2, -10.0f + 1.25f * (float)j));
+            arbor_vec3 q =
+                vec3_add(vec3_scale(e1, -10.0f + 1.25f * (float)i), vec3_scale(e2, -10.0f + 1.25f * (float)j));
             arbor_mesh_add_vert(m, vec3_scale(vec3_add(vec3(translate, translate, translate), q), scale), NULL);
         }
     uint32_t index;
@@ -399,7 +402,8 @@ static void test_thin_gaps_do_not_leak(void)
                 for (int n = 0; n < 100; n++) {
                     float u = test_rng_float(&g), v = test_rng_float(&g) * (1.0f - u);
                     arbor_hit h = {1.0f, u, v, t};
-                    arbor_vec3 p = sample_hit_point(&m, &h);
+                    arbor_vec3 normal;
+                    arbor_vec3 p = sample_hit_point(&m, &h, &normal);
                     float x = p.x / k, y = p.y / k;
                     if (fabsf(fabsf(x) - 2.0f) < 1e-3f || fabsf(fabsf(y) - 2.0f) < 1e-3f)
                         continue; /* on the sheet's outline: either answer is right */
