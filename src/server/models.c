@@ -373,7 +373,9 @@ static void upload_run(void *ctx, uint32_t task)
     } else if (!save_upload(r->parts, s->config.upload_dir, j->name, file, sizeof file, why, sizeof why)) {
         http_reply_error(r, 507, "insufficient_storage", "%s", why);
     } else if ((stamp = arbor_file_stamp(file)) == 0) { /* taken at once: what sync.c compares */
-        http_reply_error(r, 507, "insufficient_storage", "the saved upload %s is gone", file);
+        /* A DELETE of the name came between the rename and now: it is the
+         * later change, and this upload is gone with it. */
+        http_reply_error(r, 409, "conflict", "model '%s' was deleted as it was added", j->name);
     } else if (!arbor_store_add_model(s->store, j->name, file, &mesh, flags, &version, &err)) {
         /* A new model refused (no room) leaves no file: the daemons sharing
          * the folder would load it, and a restart too. */

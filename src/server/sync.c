@@ -101,9 +101,13 @@ static void load_answer(sync_load *l, bool ok, const arbor_err *e)
     waiter *w = l->waiters;
     l->waiters = NULL;
     pthread_mutex_unlock(&s->lock);
+    /* A file replaced or deleted while it was read (another request, or
+     * another daemon, changed the folder) is no fault of the file: the
+     * waiters look again and find what is there now. */
+    bool changed = !ok && arbor_file_stamp(l->path) != l->stamp;
     while (w != NULL) {
         waiter *next = w->next;
-        if (ok)
+        if (ok || changed)
             w->r->redispatch = true;
         else if (e->status == ARBOR_ERR_NOSPACE || e->status == ARBOR_ERR_NOMEM || e->status == ARBOR_ERR_CANCELLED)
             http_reply_err(w->r, e);

@@ -550,8 +550,10 @@ static void build_run(void *ctx, uint32_t task)
     tree_slot *slot = &b->model->slots[b->kind][b->builder];
     assert(slot->build == b && slot->state == ARBOR_TREE_BUILDING);
     s->reserved -= b->reserved;
-    if (t != NULL && b->model->detached) {
-        arbor_fail(&err, ARBOR_ERR_NOT_FOUND, "model '%s' was removed while its tree was built", b->model->name);
+    if (b->model->detached) {
+        /* Cancelled or not, the tree is of a model that is gone. */
+        arbor_fail(&err, ARBOR_ERR_NOT_FOUND, "model '%s' was removed or replaced while its tree was built",
+                   b->model->name);
     } else if (t != NULL) {
         /* The estimate may have been low: make room now or give the tree up. */
         uint64_t pending = 0;
@@ -611,6 +613,9 @@ static void build_done(void *ctx, bool cancelled)
         arbor_fail(&err, ARBOR_ERR_CANCELLED, "build of %s %s cancelled", arbor_accel_kind_name(b->kind),
                    arbor_builder_name(b->builder));
         pthread_mutex_lock(&s->lock);
+        if (b->model->detached)
+            arbor_fail(&err, ARBOR_ERR_NOT_FOUND, "model '%s' was removed or replaced while its tree was built",
+                       b->model->name);
         tree_slot *slot = &b->model->slots[b->kind][b->builder];
         s->reserved -= b->reserved;
         slot->state = ARBOR_TREE_ABSENT;

@@ -44,8 +44,8 @@ static void setup(void)
     FUZZ_CHECK(store != NULL, "%s", e.msg);
     arbor_server_config c = {
         .bind = "127.0.0.1", .threads = 1, .queue = 4, .max_pixels = 1 << 16, .max_body = 1 << 16,
-        .max_upload = 1 << 18, .web_dir = models_dir, .upload_dir = models_dir, .connection_limit = 64,
-        .per_ip_limit = 64, .connection_timeout_s = 10,
+        .max_upload = 1 << 18, .web_dir = models_dir, .upload_dir = models_dir, .connection_limit = 1000,
+        .per_ip_limit = 1000, .connection_timeout_s = 10,
     };
     server = arbor_server_start(&c, store, pool, &e);
     FUZZ_CHECK(server != NULL, "%s", e.msg);
