@@ -501,12 +501,48 @@ static void log_request(const arbor_server *s, const http_req *r, double ms)
 
 /* ---- libmicrohttpd callbacks ---- */
 
+/* What the server keeps per connection: the record on_uri made for the
+ * request being read, until the access handler takes it. libmicrohttpd
+ * calls the completion callback only for requests that reached the
+ * handler, so the record of one it refused itself (a request line or
+ * headers over its limits) is freed here: at the connection's next request,
+ * or when it closes. Polling thread only. */
+typedef struct {
+    http_req *unclaimed;
+} conn_ctx;
+
+static void on_connection(void *cls, struct MHD_Connection *conn, void **socket_context,
+                          enum MHD_ConnectionNotificationCode code)
+{
+    (void)cls;
+    (void)conn;
+    if (code == MHD_CONNECTION_NOTIFY_STARTED) {
+        *socket_context = calloc(1, sizeof(conn_ctx));
+        return;
+    }
+    conn_ctx *c = *socket_context;
+    if (c != NULL)
+        http_req_release(c->unclaimed);
+    free(c);
+    *socket_context = NULL;
+}
+
+static conn_ctx *conn_ctx_of(struct MHD_Connection *conn)
+{
+    const union MHD_ConnectionInfo *ci = MHD_get_connection_info(conn, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+    return ci != NULL ? ci->socket_context : NULL;
+}
+
 /* The first thing libmicrohttpd knows of a request: its raw URI (query
  * string included, for the log). Creates the record. */
 static void *on_uri(void *cls, const char *uri, struct MHD_Connection *conn)
 {
-    (void)conn;
     arbor_server *s = cls;
+    conn_ctx *c = conn_ctx_of(conn);
+    if (c != NULL) {
+        http_req_release(c->unclaimed);
+        c->unclaimed = NULL;
+    }
     http_req *r = calloc(1, sizeof *r);
     char *url = strdup(uri);
     if (r == NULL || url == NULL) {
@@ -523,18 +559,25 @@ static void *on_uri(void *cls, const char *uri, struct MHD_Connection *conn)
     uint64_t id = ++s->next_request_id;
     pthread_mutex_unlock(&s->lock);
     snprintf(r->id, sizeof r->id, "%" PRIx64 "-%" PRIu64, (uint64_t)s->start_ms & 0xffff, id);
+    if (c != NULL)
+        c->unclaimed = r;
     return r;
 }
 
 static void on_completed(void *cls, struct MHD_Connection *conn, void **con_cls,
                          enum MHD_RequestTerminationCode toe)
 {
-    (void)conn;
     (void)toe;
     arbor_server *s = cls;
     http_req *r = *con_cls;
     if (r == NULL)
         return;
+    /* libmicrohttpd also completes some requests that never reached the
+     * handler (a connection timed out while its headers came in): this
+     * callback's release is then the only one. */
+    conn_ctx *c = conn_ctx_of(conn);
+    if (c != NULL && c->unclaimed == r)
+        c->unclaimed = NULL;
     double ms = arbor_now_ms() - r->start_ms;
     if (r->status != 0) {
         metrics_request(&s->metrics, r->route, r->status, ms / 1e3);
@@ -631,6 +674,9 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
     }
     if (r->conn == NULL) {
         r->conn = conn;
+        conn_ctx *c = conn_ctx_of(conn);
+        if (c != NULL && c->unclaimed == r)
+            c->unclaimed = NULL; /* the completion callback frees it now */
         json_oom = false; /* a mark left by what came before is not this request's */
         if (!on_headers(r, method))
             return queue_reply(r);
@@ -763,6 +809,7 @@ static bool start_mhd(arbor_server *s, arbor_err *e)
     s->mhd = MHD_start_daemon(
         flags, (uint16_t)c->port, NULL, NULL, on_request, s, MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&ss,
         MHD_OPTION_URI_LOG_CALLBACK, on_uri, s, MHD_OPTION_NOTIFY_COMPLETED, on_completed, s,
+        MHD_OPTION_NOTIFY_CONNECTION, on_connection, s,
         MHD_OPTION_UNESCAPE_CALLBACK, unescape, NULL, MHD_OPTION_EXTERNAL_LOGGER, mhd_quiet, NULL,
         MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)c->connection_timeout_s, MHD_OPTION_CONNECTION_LIMIT,
         (unsigned)c->connection_limit, MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)c->per_ip_limit,
