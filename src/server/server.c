@@ -908,11 +908,10 @@ void arbor_server_stop(arbor_server *s)
 {
     if (s == NULL)
         return;
-    if (s->mhd != NULL) {
-        MHD_socket listen = MHD_quiesce_daemon(s->mhd);
-        if (listen != MHD_INVALID_SOCKET)
-            close(listen);
-    }
+    /* The listening socket is ours once quiesced, but the polling thread may
+     * still look at its descriptor until it stops: closed after that
+     * (TSan saw the close race the thread). */
+    MHD_socket listen = s->mhd != NULL ? MHD_quiesce_daemon(s->mhd) : MHD_INVALID_SOCKET;
     atomic_store(&s->closing, true);
     pthread_mutex_lock(&s->lock);
     s->stopping = true;
@@ -935,6 +934,8 @@ void arbor_server_stop(arbor_server *s)
     drain(s);
     if (s->mhd != NULL)
         MHD_stop_daemon(s->mhd);
+    if (listen != MHD_INVALID_SOCKET)
+        close(listen);
     if (s->oom != NULL)
         MHD_destroy_response(s->oom);
     jobs_destroy(s->jobs);
