@@ -384,7 +384,8 @@ class App {
                 const n = (d.boxes || []).length;
                 parts.push(`${name}: ${n.toLocaleString('en-US')} box${n === 1 ? '' : 'es'}` +
                     (d.truncated ? ` drawn of ${Number(d.count).toLocaleString('en-US')} (capped at ${Number(d.max_boxes).toLocaleString('en-US')})` : '') +
-                    (b.leaves ? ' (leaves)' : b.all ? ' (all levels)' : ` at depth ${b.depth}`));
+                    // the depth of the boxes shown, not the slider's: they may still be on their way
+                    (b.leaves ? ' (leaves)' : b.all ? ' (all levels)' : ` at depth ${d.depth}`));
             }
         }
         el.textContent = parts.join(' · ');
