@@ -74,6 +74,11 @@ typedef struct {
     void *user;                          /* row_done's first argument */
 } arbor_bench_opts;
 
+/* A kind's or a builder's name as its index in opts.kinds / opts.builders,
+ * for the CLI's and the daemon's lists of names; false for an unknown name. */
+bool arbor_bench_kind_index(const char *name, int *index);
+bool arbor_bench_builder_index(const char *name, int *index);
+
 /* Every kind and builder, 5 runs, one thread per core, no Embree, no pool,
  * no cancel flag, no callback. */
 void arbor_bench_opts_init(arbor_bench_opts *o);

@@ -401,3 +401,19 @@ bool arbor_bench_parse(const char *path, int runs, const atomic_bool *cancel, ar
     out->mb_per_s = out->parse_ms > 0.0 ? (double)p.len / 1e6 / (out->parse_ms / 1e3) : 0.0;
     return ok;
 }
+
+bool arbor_bench_kind_index(const char *name, int *index)
+{
+    arbor_accel_kind k;
+    bool ok = arbor_accel_kind_parse(name, &k);
+    *index = (int)k;
+    return ok;
+}
+
+bool arbor_bench_builder_index(const char *name, int *index)
+{
+    arbor_builder b;
+    bool ok = arbor_builder_parse(name, &b);
+    *index = (int)b;
+    return ok;
+}

@@ -224,21 +224,7 @@ static bool parse_list(const char *opt, const char *list, bool *chosen, int coun
     return false;
 }
 
-static bool parse_kind(const char *name, int *index)
-{
-    arbor_accel_kind k;
-    bool ok = arbor_accel_kind_parse(name, &k);
-    *index = (int)k;
-    return ok;
-}
 
-static bool parse_builder(const char *name, int *index)
-{
-    arbor_builder b;
-    bool ok = arbor_builder_parse(name, &b);
-    *index = (int)b;
-    return ok;
-}
 
 /* Returns -1 to go on, else the exit code. */
 static int parse_args(int argc, char **argv, bench_args *a)
@@ -263,9 +249,9 @@ static int parse_args(int argc, char **argv, bench_args *a)
                 else
                     fprintf(stderr, "arbord bench: at most %d models\n", MAX_MODELS);
             } else if (strcmp(opt, "--accel") == 0) {
-                ok = parse_list(opt, v, a->opts.kinds, ARBOR_ACCEL_KIND_COUNT, parse_kind);
+                ok = parse_list(opt, v, a->opts.kinds, ARBOR_ACCEL_KIND_COUNT, arbor_bench_kind_index);
             } else if (strcmp(opt, "--builder") == 0) {
-                ok = parse_list(opt, v, a->opts.builders, ARBOR_BUILDER_COUNT, parse_builder);
+                ok = parse_list(opt, v, a->opts.builders, ARBOR_BUILDER_COUNT, arbor_bench_builder_index);
             } else if (strcmp(opt, "--threads") == 0) {
                 ok = cli_int("bench", opt, v, 0, 256, &a->opts.threads);
             } else if (strcmp(opt, "--runs") == 0) {

@@ -254,21 +254,7 @@ static bool read_names(http_req *r, const cJSON *list, const char *field, bool *
     return true;
 }
 
-static bool parse_kind(const char *name, int *i)
-{
-    arbor_accel_kind k;
-    bool ok = arbor_accel_kind_parse(name, &k);
-    *i = (int)k;
-    return ok;
-}
 
-static bool parse_builder(const char *name, int *i)
-{
-    arbor_builder b;
-    bool ok = arbor_builder_parse(name, &b);
-    *i = (int)b;
-    return ok;
-}
 
 static bool read_bench(http_req *r, const cJSON *body, job *j)
 {
@@ -294,9 +280,9 @@ static bool read_bench(http_req *r, const cJSON *body, job *j)
     memset(j->opts.kinds, 0, sizeof j->opts.kinds);
     memset(j->opts.builders, 0, sizeof j->opts.builders);
     if (!read_names(r, cJSON_GetObjectItemCaseSensitive(body, "accel"), "accel", j->opts.kinds,
-                    ARBOR_ACCEL_KIND_COUNT, parse_kind) ||
+                    ARBOR_ACCEL_KIND_COUNT, arbor_bench_kind_index) ||
         !read_names(r, cJSON_GetObjectItemCaseSensitive(body, "builder"), "builder", j->opts.builders,
-                    ARBOR_BUILDER_COUNT, parse_builder))
+                    ARBOR_BUILDER_COUNT, arbor_bench_builder_index))
         return false;
     j->opts.runs = 1;
     if (runs != NULL) {
