@@ -15,6 +15,13 @@
  * triangles per step (pack_test), with the arithmetic of
  * arbor_triangle_intersect lane by lane, so each triangle gives exactly the
  * t, u, v brute force computes for it.
+ *
+ * Ties. Among hits at exactly the same t the lowest triangle index wins, as
+ * in brute force and the k-d tree, whatever leaf or lane finds them: once
+ * there is a hit the triangle tests accept t up to the next float above
+ * it, so an equal t reaches the index comparison, and popped entries are
+ * skipped only when their entry distance is beyond the hit (entry <= t is
+ * still visited: such a box may hold a tie).
  */
 #include <immintrin.h>
 
@@ -229,7 +236,9 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
     box_ray_setup(&q, r);
     tri_ray tq;
     bool tq_ready = false;
-    float tmax = r->tmax;
+    /* tmax: the closest hit so far; limit: the triangle tests' bound, just
+     * above tmax once there is a hit, so that a tie reaches the index rule */
+    float tmax = r->tmax, limit = r->tmax;
     stack_entry stack[BVH_MAX_DEPTH * (BVH_WIDTH - 1)];
     uint32_t sp = 0;
     uint64_t ref = 0; /* the root */
@@ -303,22 +312,31 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             }
             for (uint32_t p = p0; p < p0 + bvh_packs_for(tris); p++) {
                 pack_hits ph;
-                int hits = pack_test(&t->packs[p], &tq, _mm_set1_ps(tmax), &ph);
+                int hits = pack_test(&t->packs[p], &tq, _mm_set1_ps(limit), &ph);
                 if (hits == 0)
                     continue;
                 if (any_hit)
                     return true;
-                /* the nearest lane hit; on a tie the first, as a triangle
-                 * by triangle loop taking only t < tmax would */
+                /* the nearest lane hit; among lanes at that t the lowest
+                 * triangle index, and against the best so far the same */
                 __m128 th = _mm_or_ps(_mm_and_ps(ph.hit, ph.t), _mm_andnot_ps(ph.hit, _mm_set1_ps(INFINITY)));
                 __m128 m = _mm_min_ps(th, _mm_shuffle_ps(th, th, _MM_SHUFFLE(2, 3, 0, 1)));
                 m = _mm_min_ps(m, _mm_shuffle_ps(m, m, _MM_SHUFFLE(1, 0, 3, 2)));
-                int l = __builtin_ctz(_mm_movemask_ps(_mm_cmpeq_ps(th, m)) & hits);
+                int nearest = _mm_movemask_ps(_mm_cmpeq_ps(th, m)) & hits;
+                int l = __builtin_ctz(nearest);
+                for (int o = nearest & (nearest - 1); o != 0; o &= o - 1)
+                    if (t->pack_tri[BVH_WIDTH * p + (uint32_t)__builtin_ctz(o)] < t->pack_tri[BVH_WIDTH * p + (uint32_t)l])
+                        l = __builtin_ctz(o);
+                float tl = lane(ph.t, l);
+                uint32_t slot = BVH_WIDTH * p + (uint32_t)l;
+                if (found && tl == tmax && t->pack_tri[slot] > t->pack_tri[hit_slot])
+                    continue;
                 found = true;
-                tmax = lane(ph.t, l);
+                tmax = tl;
+                limit = nextafterf(tl, INFINITY);
                 hit_u = lane(ph.v, l) * lane(ph.inv, l);
                 hit_v = lane(ph.w, l) * lane(ph.inv, l);
-                hit_slot = BVH_WIDTH * p + (uint32_t)l;
+                hit_slot = slot;
             }
         }
         /* next: the most recently pushed entry that may still hold a closer hit */
