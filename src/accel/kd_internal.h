@@ -2,10 +2,15 @@
  * kd_internal.h - the k-d tree's private types (private to src/accel/kd*.c).
  *
  *   kd.c           the arbor_kd_ops table: what accel.c calls
- *   kd_build.c     the recursion every builder shares (events, perfect
- *                  splits, node output, parallel parts, cancelling) and the
- *                  spatial / median / mean planes
+ *   kd_build.c     the recursion every builder shares: options, the root,
+ *                  parallel children, cancelling, the finished tree
+ *   kd_events.c    event lists: the radix sort, runs of new events
+ *   kd_clip.c      perfect splits: a straddling triangle clipped to a cell
+ *   kd_split.c     a node's events classified by a plane and dealt out to
+ *                  its children, with the clipped triangles' events spliced in
+ *   kd_simple.c    the planes of the spatial, median and mean builders
  *   kd_sah.c       the SAH plane of Wald and Havran (2006) by event sweep
+ *   kd_buffer.c    the node buffer the recursion writes, and its statistics
  *   kd_traverse.c  closest-hit and any-hit ray queries
  *   kd_validate.c  the invariant checker behind arbor_accel_validate
  *
@@ -40,7 +45,9 @@
 /* The low two bits of kd_node.flags: 0, 1, 2 = the split axis, 3 = leaf. */
 #define KD_LEAF 3u
 
-/* Child indices and leaf sizes have the upper 30 bits of flags. */
+/* Child indices and leaf sizes have the upper 30 bits of flags, above the
+ * KD_KIND_BITS of the axis or KD_LEAF. */
+#define KD_KIND_BITS 2
 #define KD_MAX_NODES (1u << 30)
 
 typedef struct {
@@ -54,8 +61,9 @@ typedef struct {
 
 _Static_assert(sizeof(kd_node) == 8, "kd nodes are 8 bytes");
 
-static inline uint32_t kd_node_kind(kd_node n) { return n.flags & 3u; }
-static inline uint32_t kd_node_high(kd_node n) { return n.flags >> 2; }
+static inline uint32_t kd_node_kind(kd_node n) { return n.flags & ((1u << KD_KIND_BITS) - 1u); }
+static inline uint32_t kd_node_high(kd_node n) { return n.flags >> KD_KIND_BITS; }
+static inline uint32_t kd_node_flags(uint32_t kind, uint32_t high) { return high << KD_KIND_BITS | kind; }
 
 /* A leaf's triangles: its own one, or its run of tri_index. An empty leaf
  * has none, and no address: a tree whose leaves all hold at most one
@@ -75,7 +83,11 @@ typedef struct {
     uint32_t max_depth;  /* the limit the build obeyed */
 } kd_tree;
 
-/* ---- building (kd_build.c, kd_sah.c) ---------------------------------- */
+/* Cell box accessors: component k of a box's lo / hi corner. */
+static inline float kd_lo(const arbor_aabb *b, int k) { return k == 0 ? b->lo.x : k == 1 ? b->lo.y : b->lo.z; }
+static inline float kd_hi(const arbor_aabb *b, int k) { return k == 0 ? b->hi.x : k == 1 ? b->hi.y : b->hi.z; }
+
+/* ---- building (kd_build.c and the files it calls) --------------------- */
 
 /* Events of Wald and Havran: where a triangle's box (clipped to the node's
  * cell) starts and ends along an axis, or lies when it is flat there. At one
@@ -154,9 +166,132 @@ typedef struct {
     float clip_slack;      /* outward rounding of computed clip coordinates (see kd_build.c) */
 } kd_builder;
 
+/* ---- event lists (kd_events.c) ---- */
+
+/* Room for new events, per triangle: one axis's run holds at most two
+ * (start and end), the three axes' runs together six. */
+#define KD_RUN_ROOM 2u
+#define KD_RUNS_ROOM (3u * KD_RUN_ROOM)
+
+/* Sorts events of one axis into (position, type) order; tmp holds n. */
+void kd_sort_events(kd_event *ev, size_t n, kd_event *tmp);
+
+/* New events being gathered: one run per axis, each with room for
+ * KD_RUN_ROOM events per triangle, so that each run is sorted on its own
+ * (three short sorts instead of one long one) and the runs are then packed
+ * in axis order, which is sorted order. */
+typedef struct {
+    kd_event *run[3];
+    size_t n[3];
+} kd_event_runs;
+
+/* Runs in ev, which has room for KD_RUNS_ROOM * ntris events. */
+void kd_runs_init(kd_event_runs *r, kd_event *ev, size_t ntris);
+
+/* Adds the events of a triangle whose (clipped) box is `box`: on each axis
+ * a start and an end, or one planar event when the box is flat there. */
+static inline void kd_runs_add(kd_event_runs *r, uint32_t tri, const arbor_aabb *box)
+{
+    for (int k = 0; k < 3; k++) {
+        float lo = kd_lo(box, k), hi = kd_hi(box, k);
+        kd_event *out = r->run[k] + r->n[k];
+        if (lo == hi) {
+            out[0] = kd_event_make(lo, tri, k, KD_EVENT_PLANAR);
+            r->n[k] += 1;
+        } else {
+            out[0] = kd_event_make(lo, tri, k, KD_EVENT_START);
+            out[1] = kd_event_make(hi, tri, k, KD_EVENT_END);
+            r->n[k] += 2;
+        }
+    }
+}
+
+/* Sorts each run and packs them into one sorted list at r->run[0];
+ * returns its length and sets axis_begin (if not NULL). tmp holds the
+ * longest run (KD_RUN_ROOM * ntris). */
+size_t kd_runs_finish(kd_event_runs *r, kd_event *tmp, size_t axis_begin[4]);
+
+/* ---- perfect splits (kd_clip.c) ---- */
+
+/* Triangle tri clipped to cell, then cut by pl into the parts in the below
+ * and above cells (child_cell[0], [1]). in[c] says whether part c is
+ * non-empty, and box[c] is then its box, rounded outwards by b->clip_slack
+ * where clipping computed a coordinate. */
+void kd_clip_split(const kd_builder *b, uint32_t tri, const arbor_aabb *cell, kd_plane pl,
+                   const arbor_aabb child_cell[2], bool in[2], arbor_aabb box[2]);
+
+/* ---- splitting a node (kd_split.c) ---- */
+
+/* Per-thread scratch: side[] is indexed by triangle (only the entries of
+ * the node being split are meaningful); fresh[] holds a split's new events
+ * (grown as needed, so small nodes never allocate); start[] and values[]
+ * serve the median. */
+typedef struct {
+    uint8_t *side;
+    kd_event *fresh;
+    size_t fresh_cap;
+    float *start;
+    float *values;
+} kd_scratch;
+
+/* An empty scratch, safe to free. */
+#define KD_SCRATCH_NONE ((kd_scratch){NULL, NULL, 0, NULL, NULL})
+
+bool kd_scratch_init(kd_scratch *s, const kd_builder *b);
+void kd_scratch_free(kd_scratch *s);
+
+/* Splits t at pl into the tasks below and above (their events sorted, their
+ * cells the halves of t's). t's events are left for the caller to free.
+ * False when memory runs out (nothing is left allocated then). */
+bool kd_split(const kd_builder *b, kd_scratch *s, const kd_task *t, kd_plane pl, kd_task *below, kd_task *above);
+
+/* ---- choosing planes (kd_simple.c, kd_sah.c) ---- */
+
+/* The plane of spatial, median or mean (kd_simple.c); false when no plane
+ * makes progress. */
+bool kd_simple_plane(const kd_builder *b, kd_scratch *s, const kd_task *t, kd_plane *pl);
+
 /* The SAH plane for t (kd_sah.c): false when no plane is cheaper than a
  * leaf, i.e. when t should be a leaf. */
 bool kd_sah_plane(const kd_builder *b, const kd_task *t, kd_plane *plane);
+
+/* ---- the node buffer (kd_buffer.c) ---- */
+
+/* The sums behind arbor_tree_stats, added up as nodes are written. */
+typedef struct {
+    double inner_area;      /* sum of inner nodes' cell areas */
+    double leaf_area_tris;  /* sum of leaves' cell areas times their triangle counts */
+    uint64_t leaves, empty_leaves, refs, depth_sum;
+    uint32_t max_depth;
+} kd_sums;
+
+/* Nodes in depth-first order and the leaves' triangle lists, as they are
+ * written; a subtree built on another thread has one of its own, with
+ * indices from 0, until kd_buffer_append moves it after its sibling. */
+typedef struct {
+    kd_node *nodes;
+    size_t nnodes, node_cap;
+    uint32_t *index;
+    size_t nindex, index_cap;
+    kd_sums sums;
+    bool failed;  /* out of memory, more nodes than 30 bits can name, or cancelled */
+} kd_buffer;
+
+/* Writes t as a leaf listing its triangles. */
+void kd_emit_leaf(kd_buffer *out, const kd_task *t);
+
+/* Writes t as an inner node at pl; returns its index. Its above child is
+ * set by kd_set_above once known. */
+size_t kd_emit_inner(kd_buffer *out, const kd_task *t, kd_plane pl);
+
+/* The above child of inner node `inner` is the next node written. */
+void kd_set_above(kd_buffer *out, size_t inner);
+
+/* Appends the subtree in `from` (built with indices from 0) to `out`. */
+void kd_buffer_append(kd_buffer *out, const kd_buffer *from);
+
+/* Fills stats from the finished tree and its buffer's sums. */
+void kd_fill_stats(const kd_tree *tree, const kd_sums *s, arbor_tree_stats *stats);
 
 /* The entry points behind arbor_kd_ops (kd.c); see accel_impl.h. */
 void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats, arbor_err *e);
@@ -168,9 +303,5 @@ bool kd_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_tra
                          void *user);
 void kd_walk_nodes(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user);
 bool kd_validate(const void *impl, const arbor_mesh *m, const arbor_tree_stats *stats, arbor_err *e);
-
-/* Cell box accessors: component k of a box's lo / hi corner. */
-static inline float kd_lo(const arbor_aabb *b, int k) { return k == 0 ? b->lo.x : k == 1 ? b->lo.y : b->lo.z; }
-static inline float kd_hi(const arbor_aabb *b, int k) { return k == 0 ? b->hi.x : k == 1 ? b->hi.y : b->hi.z; }
 
 #endif
