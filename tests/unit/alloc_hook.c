@@ -5,7 +5,8 @@
  * executable's (dlsym RTLD_NEXT): glibc's allocator, or AddressSanitizer's
  * when the test is built with it, so that ASan still checks every block and
  * reports leaks at exit. dlsym may itself allocate before the next malloc
- * is known; those few blocks come from a static arena and are never freed.
+ * is known; those few blocks come from a static arena and are never freed,
+ * as do the loader's when the unwinder is loaded (alloc_hook_init).
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -39,7 +40,7 @@ static int fail_depth;
 
 static _Alignas(max_align_t) unsigned char arena[16384];
 static atomic_size_t arena_used;
-static atomic_bool resolving;
+static atomic_bool resolving, loading_unwinder;
 
 static bool in_arena(const void *p)
 {
@@ -51,6 +52,14 @@ static void *arena_alloc(size_t n)
     size_t size = (n + sizeof(max_align_t) - 1) / sizeof(max_align_t) * sizeof(max_align_t);
     size_t at = atomic_fetch_add(&arena_used, size);
     return at + size <= sizeof arena ? arena + at : NULL;
+}
+
+/* Whether an allocation comes from the arena: while dlsym looks up the
+ * next allocator (`unresolved`: the one this call needs is not known yet),
+ * and while the constructor loads the unwinder. */
+static bool from_arena(bool unresolved)
+{
+    return (unresolved && atomic_load(&resolving)) || atomic_load(&loading_unwinder);
 }
 
 static void resolve(void)
@@ -69,15 +78,42 @@ static void resolve(void)
 
 __attribute__((constructor)) static void alloc_hook_init(void)
 {
-    resolve();
-    /* The first backtrace loads the unwinder, which allocates: not inside
-     * an allocation that fails. */
+    /* The first backtrace loads the unwinder (a dlopen of libgcc_s), which
+     * allocates: here, not inside an allocation that fails, and from the
+     * arena, because the loader keeps those blocks where LeakSanitizer does
+     * not look and would report them as leaked. */
+    atomic_store(&loading_unwinder, true);
     fail_depth = backtrace(fail_stack, 32);
+    atomic_store(&loading_unwinder, false);
+    resolve();
 }
 
 /* ---- the counter ---- */
 
-/* Whether this allocation is the one to fail; `site` is its caller. */
+/* The first frame of stack[0, depth), from `site` on, that is neither the
+ * C library (a tsearch, an fopen) nor a sanitizer's runtime (which
+ * intercepts tsearch, strdup, ...): the program's code that allocated.
+ * NULL when there is none; site itself when the stack does not hold it. */
+static void *program_frame(void *const *stack, int depth, void *site)
+{
+    Dl_info info;
+    int i = 0;
+    while (i < depth && stack[i] != site)
+        i++;
+    if (i == depth)
+        return site;
+    for (; i < depth; i++)
+        if (dladdr(stack[i], &info) != 0 && info.dli_fname != NULL && strstr(info.dli_fname, "libc.so") == NULL &&
+            strstr(info.dli_fname, "san.so") == NULL)
+            return stack[i];
+    return NULL;
+}
+
+/* Whether this allocation is the one to fail; `site` is its caller. An
+ * allocation no code of the program asked for (a sanitizer's runtime
+ * starting a thread calls pthread_getattr_np, which allocates) is not
+ * failed: the runtime takes that as a broken invariant and aborts, which no
+ * program could handle. The next allocation fails instead. */
 static bool should_fail(void *site)
 {
     if (!atomic_load_explicit(&armed, memory_order_relaxed))
@@ -85,6 +121,10 @@ static bool should_fail(void *site)
     if (atomic_fetch_add(&count, 1) + 1 != atomic_load(&fail_at))
         return false;
     fail_depth = backtrace(fail_stack, 32);
+    if (program_frame(fail_stack, fail_depth, site) == NULL) {
+        atomic_fetch_add(&fail_at, 1);
+        return false;
+    }
     atomic_store(&fail_site, site);
     atomic_store(&fired, true);
     errno = ENOMEM; /* as the real allocators say it */
@@ -125,23 +165,15 @@ long alloc_hook_live(void)
 }
 
 /* The caller of the failed allocation, or the first caller above it that is
- * neither the C library (a tsearch, an fopen) nor a sanitizer's runtime
- * (which intercepts tsearch, strdup, ...). */
+ * the program's (program_frame). */
 const char *alloc_hook_failed_in(void)
 {
     static char name[256];
     Dl_info info;
     void *site = atomic_load(&fail_site);
     name[0] = '\0';
-    int i = 0;
-    while (i < fail_depth && fail_stack[i] != site)
-        i++;
-    for (int j = i; j < fail_depth; j++)
-        if (dladdr(fail_stack[j], &info) != 0 && info.dli_fname != NULL && strstr(info.dli_fname, "libc.so") == NULL &&
-            strstr(info.dli_fname, "san.so") == NULL) {
-            site = fail_stack[j];
-            break;
-        }
+    if (site != NULL)
+        site = program_frame(fail_stack, fail_depth, site);
     if (site != NULL && dladdr(site, &info) != 0 && info.dli_fname != NULL) {
         const char *base = strrchr(info.dli_fname, '/');
         snprintf(name, sizeof name, "%s+0x%zx", base != NULL ? base + 1 : info.dli_fname,
@@ -154,7 +186,7 @@ const char *alloc_hook_failed_in(void)
 
 static void *hooked_malloc(size_t n, void *site)
 {
-    if (next_malloc == NULL && atomic_load(&resolving))
+    if (from_arena(next_malloc == NULL))
         return arena_alloc(n);
     resolve();
     if (should_fail(site))
@@ -169,7 +201,7 @@ void *malloc(size_t n)
 
 void *calloc(size_t n, size_t size)
 {
-    if (next_calloc == NULL && atomic_load(&resolving)) {
+    if (from_arena(next_calloc == NULL)) {
         if (size != 0 && n > SIZE_MAX / size)
             return NULL;
         return arena_alloc(n * size); /* static storage: already zero */
