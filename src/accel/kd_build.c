@@ -39,8 +39,11 @@
  *   max_depth      round(8 + 1.3 floor(log2 N)), as pbrt (<= KD_MAX_DEPTH)
  *   max_leaf_tris  4 for spatial / median / mean (on galleon and castle 4
  *                  gave spatial a lower SAH cost and faster rays than 1
- *                  or 2, and median / mean do not care); 1 for sah, whose
- *                  cost model decides the rest
+ *                  or 2, and median / mean do not care); none for sah
+ *                  (0: only empty nodes are leaves before the SAH is
+ *                  asked), whose cost alone ends the recursion, as the
+ *                  paper's; a cap of 1 made every single triangle a leaf
+ *                  in a cell the SAH would still have cut empty space off
  *   cost_traverse  15, cost_intersect 20, empty_bonus 0.2: the paper's
  *                  KT, KI and lambda = 1 - empty_bonus = 0.8 (kd_sah.c)
  *   threads        as accel.c resolves it (the pool's thread count, or
@@ -157,7 +160,7 @@ static void kd_builder_init(kd_builder *b, const arbor_mesh *m, const arbor_buil
     b->run = run;
     b->builder = o->builder;
     b->max_depth = o->max_depth > 0 ? (uint32_t)o->max_depth : kd_default_max_depth(m->ntris);
-    b->max_leaf_tris = o->max_leaf_tris > 0 ? (uint32_t)o->max_leaf_tris : o->builder == ARBOR_BUILD_SAH ? 1u : 4u;
+    b->max_leaf_tris = o->max_leaf_tris > 0 ? (uint32_t)o->max_leaf_tris : o->builder == ARBOR_BUILD_SAH ? 0u : 4u;
     b->cost_traverse = o->cost_traverse > 0.0f ? o->cost_traverse : 15.0f;
     b->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : 20.0f;
     b->empty_factor = 1.0f - (o->empty_bonus >= 0.0f ? o->empty_bonus : 0.2f);

@@ -22,8 +22,10 @@
  * A leaf's cell is not stored: it follows from the root box and the planes.
  *
  * Invariants (kd_validate.c checks them):
- *   - every split lies strictly inside its node's cell, so both children
- *     have cells of positive extent along the split axis;
+ *   - every split lies within its node's cell, which has positive extent
+ *     along the split axis; strictly inside it but for the SAH's splits on
+ *     a face, whose flat child (no extent along the axis) takes the
+ *     triangles lying in that face (kd_sah.c);
  *   - a triangle is listed in every leaf whose cell it enters and in no leaf
  *     it does not touch (up to rounding at the cells' faces; the builder
  *     rounds outwards, so at worst a triangle is listed once too often);
@@ -254,6 +256,13 @@ bool kd_simple_plane(const kd_builder *b, kd_scratch *s, const kd_task *t, kd_pl
 /* The SAH plane for t (kd_sah.c): false when no plane is cheaper than a
  * leaf, i.e. when t should be a leaf. */
 bool kd_sah_plane(const kd_builder *b, const kd_task *t, kd_plane *plane);
+
+/* The SAH's parts (kd_sah.c; exposed for the test of the sweep): the areas
+ * of the children of cell split at p on axis k as fractions of the cell's
+ * (pb below, pa above), and the cost of a split whose children hold nb and
+ * na triangles. */
+void kd_sah_fractions(const arbor_aabb *cell, int k, float p, double *pb, double *pa);
+double kd_sah_cost(const kd_builder *b, double pb, double pa, uint32_t nb, uint32_t na);
 
 /* ---- the node buffer (kd_buffer.c) ---- */
 

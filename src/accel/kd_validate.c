@@ -7,8 +7,9 @@
  * builder's clipping.
  *
  *  1. The walk: from the root, every node is reached exactly once; inner
- *     nodes have an axis, a split strictly inside their cell and children in
- *     range; leaves are no deeper than max_depth and list valid triangles,
+ *     nodes have an axis, a split within their cell (on a face only when
+ *     the cell has extent along the axis: the SAH's flat children) and
+ *     children in range; leaves are no deeper than max_depth and list valid triangles,
  *     each of which touches the leaf's cell grown by a tolerance. The walk
  *     also recounts every statistic, which must equal the stored ones.
  *  2. Coverage: each triangle is listed somewhere, and in every leaf whose
@@ -125,14 +126,20 @@ static kd_dbox kd_grown(const kd_dbox *cell, double tol)
     return g;
 }
 
-/* The cell shrunk by tol at faces that are split planes (grown at the root
- * box's own faces, where no neighbour could take the triangle). */
-static kd_dbox kd_shrunk(const kd_check *c, const kd_dbox *cell)
+/* Bits of a cell's faces: the low face on axis k is bit 2k, the high one
+ * bit 2k + 1. */
+static unsigned kd_face_bit(uint32_t k, bool high) { return 1u << (2 * k + high); }
+
+/* The cell shrunk by tol at faces that are split planes (the bits of
+ * split_faces) and grown at the root box's own faces, where no neighbour
+ * could take the triangle. Which faces are split planes is known from the
+ * descent, not from coordinates: a split may lie on the root box's face. */
+static kd_dbox kd_shrunk(const kd_check *c, const kd_dbox *cell, unsigned split_faces)
 {
-    kd_dbox root = kd_dbox_of(&c->tree->bounds), s = *cell;
-    for (int k = 0; k < 3; k++) {
-        s.lo[k] += s.lo[k] == root.lo[k] ? -c->tol : c->tol;
-        s.hi[k] += s.hi[k] == root.hi[k] ? c->tol : -c->tol;
+    kd_dbox s = *cell;
+    for (uint32_t k = 0; k < 3; k++) {
+        s.lo[k] += (split_faces & kd_face_bit(k, false)) ? c->tol : -c->tol;
+        s.hi[k] += (split_faces & kd_face_bit(k, true)) ? -c->tol : c->tol;
     }
     return s;
 }
@@ -183,8 +190,8 @@ static bool kd_walk(kd_check *c, uint32_t at, const kd_dbox *cell, uint32_t dept
     if (axis == KD_LEAF)
         return kd_check_leaf(c, at, cell, depth);
     double split = n.split;
-    if (!(split > cell->lo[axis] && split < cell->hi[axis]))
-        return arbor_fail(c->e, ARBOR_ERR_INVALID, "kd node %u: split %g on axis %u outside its cell (%g, %g)", at,
+    if (!(split >= cell->lo[axis] && split <= cell->hi[axis] && cell->lo[axis] < cell->hi[axis]))
+        return arbor_fail(c->e, ARBOR_ERR_INVALID, "kd node %u: split %g on axis %u outside its cell [%g, %g]", at,
                           split, axis, cell->lo[axis], cell->hi[axis]);
     uint32_t above = kd_node_high(n);
     if (above <= at + 1)
@@ -205,13 +212,15 @@ static bool kd_listed_in(const kd_tree *t, uint32_t at, uint32_t tri)
     return false;
 }
 
-/* Step 2 for triangle tri (box tbox) in the subtree at `at`. */
-static bool kd_cover(kd_check *c, uint32_t tri, const kd_dbox *tbox, uint32_t at, const kd_dbox *cell)
+/* Step 2 for triangle tri (box tbox) in the subtree at `at`, whose cell's
+ * faces in split_faces are split planes. */
+static bool kd_cover(kd_check *c, uint32_t tri, const kd_dbox *tbox, uint32_t at, const kd_dbox *cell,
+                     unsigned split_faces)
 {
     kd_node n = c->tree->nodes[at];
     uint32_t axis = kd_node_kind(n);
     if (axis == KD_LEAF) {
-        kd_dbox inner = kd_shrunk(c, cell);
+        kd_dbox inner = kd_shrunk(c, cell, split_faces);
         if (kd_tri_meets_box(c->mesh, tri, &inner) && !kd_listed_in(c->tree, at, tri))
             return arbor_fail(c->e, ARBOR_ERR_INVALID,
                               "kd leaf %u: triangle %u enters its cell [%g %g %g]-[%g %g %g] but is not listed", at,
@@ -220,9 +229,12 @@ static bool kd_cover(kd_check *c, uint32_t tri, const kd_dbox *tbox, uint32_t at
     }
     kd_dbox below_cell = *cell, above_cell = *cell;
     below_cell.hi[axis] = above_cell.lo[axis] = n.split;
-    if (tbox->lo[axis] <= n.split + c->tol && !kd_cover(c, tri, tbox, at + 1, &below_cell))
+    unsigned below_faces = split_faces | kd_face_bit(axis, true);
+    unsigned above_faces = split_faces | kd_face_bit(axis, false);
+    if (tbox->lo[axis] <= n.split + c->tol && !kd_cover(c, tri, tbox, at + 1, &below_cell, below_faces))
         return false;
-    return !(tbox->hi[axis] >= n.split - c->tol) || kd_cover(c, tri, tbox, kd_node_high(n), &above_cell);
+    return !(tbox->hi[axis] >= n.split - c->tol) ||
+           kd_cover(c, tri, tbox, kd_node_high(n), &above_cell, above_faces);
 }
 
 static bool kd_stat_equal(double walked, double stored)
@@ -281,7 +293,7 @@ static bool kd_check_all(kd_check *c, const arbor_tree_stats *stats)
             return arbor_fail(c->e, ARBOR_ERR_INVALID, "kd tree: triangle %u is in no leaf", tri);
         arbor_aabb b = arbor_mesh_tri_bounds(m, tri);
         kd_dbox tbox = kd_dbox_of(&b);
-        if (!kd_cover(c, tri, &tbox, 0, &root))
+        if (!kd_cover(c, tri, &tbox, 0, &root, 0))
             return false;
     }
     return true;
