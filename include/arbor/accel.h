@@ -64,8 +64,28 @@ typedef struct {
     float empty_bonus;    /* kd SAH: fraction of cost saved for an empty side; <0 = default */
 } arbor_build_opts;
 
-/* Statistics of a built tree (DESIGN.md). sah_cost is
- * sum over inner nodes A(n)/A(root) + sum over leaves A(l)/A(root) * N(l). */
+/* A tree's two layouts. The builders of both kinds make a binary tree,
+ * which the study's measures describe and the k-d tree's rays traverse; the
+ * bvh collapses its binary tree into a wide one (nodes of several children,
+ * leaves of triangle packs), and its rays traverse that. */
+typedef enum { ARBOR_LAYOUT_BINARY, ARBOR_LAYOUT_WIDE, ARBOR_LAYOUT_COUNT } arbor_layout;
+
+/* The shape of one layout. For the binary tree sah_cost is
+ * sum over inner nodes A(n)/A(root) + sum over leaves A(l)/A(root) * N(l);
+ * the wide tree's is the same sum with a leaf's packs for its triangles
+ * (src/accel/bvh_wide_stats.c says why). nodes counts leaves too. */
+typedef struct {
+    uint64_t nodes, leaves, empty_leaves;
+    uint32_t max_depth;
+    double mean_leaf_depth;     /* over all leaves; the root is depth 0 */
+    double mean_tris_per_leaf;  /* over non-empty leaves */
+    uint64_t refs;              /* triangle references in leaves */
+    uint64_t bytes;             /* memory this layout's arrays hold */
+    double sah_cost;
+} arbor_layout_stats;
+
+/* Statistics of a built tree (DESIGN.md): those of its binary tree, inline
+ * (as the study's tables have them), and of its wide tree when it has one. */
 typedef struct {
     double build_ms;
     uint64_t nodes, leaves, empty_leaves;
@@ -75,7 +95,13 @@ typedef struct {
     uint64_t refs;              /* triangle references in leaves */
     uint64_t bytes;             /* memory the tree holds: all its arrays (bvh: both layouts) */
     double sah_cost;
+    bool has_wide;              /* the bvh: rays traverse the wide tree below */
+    arbor_layout_stats wide;
 } arbor_tree_stats;
+
+const char *arbor_layout_name(arbor_layout layout);
+/* One layout's statistics from s: false when the tree has no such layout. */
+bool arbor_tree_layout_stats(const arbor_tree_stats *s, arbor_layout layout, arbor_layout_stats *out);
 
 /* Work done by one traced ray, for the heat mode and per-ray statistics. */
 typedef struct {

@@ -6,9 +6,10 @@
  * Each function returns a new cJSON object the caller owns and frees with
  * cJSON_Delete, or NULL when out of memory. Numbers that do not apply (NAN:
  * Embree's tree statistics, for instance) become JSON null. Keys:
- *   tree stats: model, triangles, accel, builder, build_ms, nodes, leaves,
- *     empty_leaves, max_depth, mean_leaf_depth, mean_tris_per_leaf, refs,
- *     bytes, sah_cost
+ *   tree stats: model, triangles, accel, builder, layout ("binary" or
+ *     "wide", arbor_layout), build_ms, nodes, leaves, empty_leaves,
+ *     max_depth, mean_leaf_depth, mean_tris_per_leaf, refs, bytes, sah_cost:
+ *     the shape of that one layout (build_ms is the whole tree's)
  *   bench row: model, triangles, accel, builder, threads, build_ms,
  *     mean_leaf_depth, mean_tris_per_leaf, sah_cost, render_ms,
  *     primary_mrays, diffuse_mrays, shadow_mrays, primary_hits,
@@ -26,8 +27,10 @@
 #include "arbor/accel.h"
 #include "arbor/bench.h"
 
+/* The statistics of one layout of a tree, which s must have
+ * (arbor_tree_layout_stats). */
 cJSON *arbor_report_tree_stats(const char *model, uint32_t triangles, arbor_accel_kind kind, arbor_builder builder,
-                               const arbor_tree_stats *s);
+                               const arbor_tree_stats *s, arbor_layout layout);
 
 cJSON *arbor_report_bench_row(const arbor_bench_row *row, bool with_ratios);
 

@@ -18,6 +18,7 @@ struct arbor_accel {
 
 static const char *const kind_names[ARBOR_ACCEL_KIND_COUNT] = {"bvh", "kd"};
 static const char *const builder_names[ARBOR_BUILDER_COUNT] = {"spatial", "median", "mean", "sah"};
+static const char *const layout_names[ARBOR_LAYOUT_COUNT] = {"binary", "wide"};
 
 void arbor_build_opts_init(arbor_build_opts *o, arbor_accel_kind kind, arbor_builder builder)
 {
@@ -35,6 +36,25 @@ const char *arbor_accel_kind_name(arbor_accel_kind kind)
 const char *arbor_builder_name(arbor_builder builder)
 {
     return (unsigned)builder < ARBOR_BUILDER_COUNT ? builder_names[builder] : "?";
+}
+
+const char *arbor_layout_name(arbor_layout layout)
+{
+    return (unsigned)layout < ARBOR_LAYOUT_COUNT ? layout_names[layout] : "?";
+}
+
+bool arbor_tree_layout_stats(const arbor_tree_stats *s, arbor_layout layout, arbor_layout_stats *out)
+{
+    if (layout == ARBOR_LAYOUT_WIDE) {
+        *out = s->wide;
+        return s->has_wide;
+    }
+    if (layout != ARBOR_LAYOUT_BINARY)
+        return false;
+    *out = (arbor_layout_stats){s->nodes,  s->leaves, s->empty_leaves, s->max_depth, s->mean_leaf_depth,
+                                s->mean_tris_per_leaf, s->refs, s->bytes - (s->has_wide ? s->wide.bytes : 0),
+                                s->sah_cost};
+    return true;
 }
 
 bool arbor_accel_kind_parse(const char *name, arbor_accel_kind *kind)

@@ -634,6 +634,8 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, 
         return NULL;
     }
     tally_to_stats(&tally, tree, aabb_area(bvh_node_box(&tree->nodes[0])), stats);
+    stats->has_wide = true;
+    bvh_wide_stats(tree, &stats->wide);
     return tree;
 nomem:
     arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory building over %u triangles", n);

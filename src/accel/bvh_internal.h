@@ -117,6 +117,9 @@ void *bvh_shrink_aligned(void *p, size_t used);
  * out), and checks it against the mesh. */
 bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool parallel, arbor_err *e);
 bool bvh_wide_validate(const bvh_tree *t, const arbor_mesh *m, arbor_err *e);
+/* bvh_wide_stats.c: the wide tree's statistics (nodes, leaves, depths,
+ * bytes, sah_cost under its own cost model). */
+void bvh_wide_stats(const bvh_tree *t, arbor_layout_stats *s);
 /* The bytes both layouts hold, for arbor_tree_stats.bytes. */
 uint64_t bvh_tree_bytes(const bvh_tree *t);
 

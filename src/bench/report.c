@@ -5,6 +5,7 @@
  * addition failed, so an object is either complete or NULL, never missing
  * a key silently.
  */
+#include <assert.h>
 #include <math.h>
 #include <stdio.h>
 
@@ -45,23 +46,28 @@ static cJSON *writer_end(json_writer *w)
 }
 
 cJSON *arbor_report_tree_stats(const char *model, uint32_t triangles, arbor_accel_kind kind, arbor_builder builder,
-                               const arbor_tree_stats *s)
+                               const arbor_tree_stats *s, arbor_layout layout)
 {
+    arbor_layout_stats l;
+    bool has = arbor_tree_layout_stats(s, layout, &l);
+    assert(has && "the layout is one the tree has");
+    (void)has;
     json_writer w = writer_new();
     put_string(&w, "model", model);
     put_number(&w, "triangles", triangles);
     put_string(&w, "accel", arbor_accel_kind_name(kind));
     put_string(&w, "builder", arbor_builder_name(builder));
+    put_string(&w, "layout", arbor_layout_name(layout));
     put_number(&w, "build_ms", s->build_ms);
-    put_number(&w, "nodes", (double)s->nodes);
-    put_number(&w, "leaves", (double)s->leaves);
-    put_number(&w, "empty_leaves", (double)s->empty_leaves);
-    put_number(&w, "max_depth", s->max_depth);
-    put_number(&w, "mean_leaf_depth", s->mean_leaf_depth);
-    put_number(&w, "mean_tris_per_leaf", s->mean_tris_per_leaf);
-    put_number(&w, "refs", (double)s->refs);
-    put_number(&w, "bytes", (double)s->bytes);
-    put_number(&w, "sah_cost", s->sah_cost);
+    put_number(&w, "nodes", (double)l.nodes);
+    put_number(&w, "leaves", (double)l.leaves);
+    put_number(&w, "empty_leaves", (double)l.empty_leaves);
+    put_number(&w, "max_depth", l.max_depth);
+    put_number(&w, "mean_leaf_depth", l.mean_leaf_depth);
+    put_number(&w, "mean_tris_per_leaf", l.mean_tris_per_leaf);
+    put_number(&w, "refs", (double)l.refs);
+    put_number(&w, "bytes", (double)l.bytes);
+    put_number(&w, "sah_cost", l.sah_cost);
     return writer_end(&w);
 }
 

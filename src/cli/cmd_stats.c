@@ -1,6 +1,8 @@
 /*
  * cmd_stats.c - arbord stats: build trees over a model and print their
- * statistics, one row (or one JSON object per line) per kind and builder.
+ * statistics, one row (or one JSON object per line) per kind, builder and
+ * layout: the binary tree the builders make, and the bvh's wide tree that
+ * its rays traverse.
  */
 #include <stdio.h>
 #include <string.h>
@@ -17,21 +19,40 @@ static void usage(FILE *out)
             "  --accel     bvh, kd or all (default bvh)\n"
             "  --builder   spatial, median, mean, sah or all (default all)\n"
             "  --threads N build threads; 0 = one per core (default 0)\n"
-            "  --json      one JSON object per line instead of a table\n");
+            "  --json      one JSON object per line instead of a table\n"
+            "Each tree has a row per layout: binary (as built; what the study measured) and,\n"
+            "for the bvh, wide (the collapsed tree its rays traverse).\n");
 }
 
 static void print_header(void)
 {
-    printf("%-5s %-8s %10s %9s %9s %7s %6s %10s %9s %10s %11s %10s\n", "accel", "builder", "build_ms", "nodes",
-           "leaves", "empty", "depth", "leaf_depth", "tris/leaf", "refs", "bytes", "sah_cost");
+    printf("%-5s %-8s %-6s %10s %9s %9s %7s %6s %10s %9s %10s %11s %10s\n", "accel", "builder", "layout", "build_ms",
+           "nodes", "leaves", "empty", "depth", "leaf_depth", "tris/leaf", "refs", "bytes", "sah_cost");
 }
 
-static void print_row(arbor_accel_kind kind, arbor_builder b, const arbor_tree_stats *s)
+/* One row per layout the tree has: the binary tree, and the bvh's wide tree. */
+static void print_rows(arbor_accel_kind kind, arbor_builder b, const arbor_tree_stats *s)
 {
-    printf("%-5s %-8s %10.2f %9llu %9llu %7llu %6u %10.2f %9.2f %10llu %11llu %10.2f\n",
-           arbor_accel_kind_name(kind), arbor_builder_name(b), s->build_ms, (unsigned long long)s->nodes,
-           (unsigned long long)s->leaves, (unsigned long long)s->empty_leaves, s->max_depth, s->mean_leaf_depth,
-           s->mean_tris_per_leaf, (unsigned long long)s->refs, (unsigned long long)s->bytes, s->sah_cost);
+    arbor_layout_stats l;
+    for (int layout = 0; layout < ARBOR_LAYOUT_COUNT; layout++)
+        if (arbor_tree_layout_stats(s, (arbor_layout)layout, &l))
+            printf("%-5s %-8s %-6s %10.2f %9llu %9llu %7llu %6u %10.2f %9.2f %10llu %11llu %10.2f\n",
+                   arbor_accel_kind_name(kind), arbor_builder_name(b), arbor_layout_name((arbor_layout)layout),
+                   s->build_ms, (unsigned long long)l.nodes, (unsigned long long)l.leaves,
+                   (unsigned long long)l.empty_leaves, l.max_depth, l.mean_leaf_depth, l.mean_tris_per_leaf,
+                   (unsigned long long)l.refs, (unsigned long long)l.bytes, l.sah_cost);
+}
+
+/* One JSON object per line and layout; false when out of memory. */
+static bool print_json(const char *model, uint32_t ntris, arbor_accel_kind kind, arbor_builder b,
+                       const arbor_tree_stats *s)
+{
+    arbor_layout_stats l;
+    for (int layout = 0; layout < ARBOR_LAYOUT_COUNT; layout++)
+        if (arbor_tree_layout_stats(s, (arbor_layout)layout, &l) &&
+            !cli_print_json(arbor_report_tree_stats(model, ntris, kind, b, s, (arbor_layout)layout)))
+            return false;
+    return true;
 }
 
 int cmd_stats(int argc, char **argv)
@@ -119,9 +140,8 @@ int cmd_stats(int argc, char **argv)
             arbor_tree_stats s;
             arbor_accel_stats(tree, &s);
             if (!json)
-                print_row((arbor_accel_kind)k, (arbor_builder)b, &s);
-            else if (!cli_print_json(arbor_report_tree_stats(model, mesh.ntris, (arbor_accel_kind)k,
-                                                             (arbor_builder)b, &s)))
+                print_rows((arbor_accel_kind)k, (arbor_builder)b, &s);
+            else if (!print_json(model, mesh.ntris, (arbor_accel_kind)k, (arbor_builder)b, &s))
                 status = 1;
             arbor_accel_free(tree);
             if (status != 0) {

@@ -74,9 +74,16 @@ cJSON *model_json(arbor_server *s, arbor_model *m)
     return o;
 }
 
+/* A tree's statistics: its binary tree's (the study's measures), and the
+ * bvh's wide tree, which its rays traverse, as the object "wide". */
 static cJSON *stats_json(arbor_model *m, arbor_accel_kind k, arbor_builder b, const arbor_tree_stats *st)
 {
-    return arbor_report_tree_stats(arbor_model_name(m), arbor_model_mesh(m)->ntris, k, b, st);
+    const char *name = arbor_model_name(m);
+    uint32_t ntris = arbor_model_mesh(m)->ntris;
+    cJSON *o = arbor_report_tree_stats(name, ntris, k, b, st, ARBOR_LAYOUT_BINARY);
+    if (o != NULL && st->has_wide)
+        json_put(o, "wide", arbor_report_tree_stats(name, ntris, k, b, st, ARBOR_LAYOUT_WIDE));
+    return o;
 }
 
 /* ---- waiting for a tree ---- */

@@ -13,7 +13,7 @@ ACCELS = ("bvh", "kd")
 BUILDERS = ("spatial", "median", "mean", "sah")
 MODEL_KEYS = {"name", "file", "triangles", "vertices", "bounds", "materials", "warnings", "bytes",
               "version", "trees"}
-STATS_KEYS = {"model", "triangles", "accel", "builder", "build_ms", "nodes", "leaves", "empty_leaves",
+STATS_KEYS = {"model", "triangles", "accel", "builder", "layout", "build_ms", "nodes", "leaves", "empty_leaves",
               "max_depth", "mean_leaf_depth", "mean_tris_per_leaf", "refs", "bytes", "sah_cost"}
 FRAME_JSON_KEYS = {"model", "accel", "builder", "mode", "width", "height", "spp", "render_ms", "rays",
                    "mrays_per_s", "queue_ms", "build_ms", "heat_scale", "heat_max", "heat_mean",
@@ -187,7 +187,13 @@ def _cli_stats(path):
     rc, out, err = run_cli(["stats", "--model", path, "--accel", "all", "--builder", "all", "--json"])
     check(rc == 0, "arbord stats --model %s failed (%d): %s" % (path, rc, err))
     rows = [json.loads(ln) for ln in out.splitlines() if ln.strip()]
-    return {(r["accel"], r["builder"]): r for r in rows}
+    by = {(r["accel"], r["builder"]): r for r in rows if r["layout"] == "binary"}
+    for r in rows:
+        if r["layout"] == "wide":
+            by[(r["accel"], r["builder"])]["wide"] = r
+    eq(sorted(set((r["accel"], r["layout"]) for r in rows)), [("bvh", "binary"), ("bvh", "wide"), ("kd", "binary")],
+       "arbord stats --json layouts")
+    return by
 
 
 def _same_stats(http, cli, what):
@@ -199,6 +205,10 @@ def _same_stats(http, cli, what):
         else:
             ok = a == b
         check(ok, "%s: %s over HTTP %r, arbord stats --json %r" % (what, k, a, b))
+    # the bvh's wide tree, which its rays traverse, as the object "wide"
+    eq("wide" in http, "wide" in cli, "%s: a wide layout over HTTP as in arbord stats" % what)
+    if "wide" in cli:
+        _same_stats(http["wide"], cli["wide"], what + " (wide)")
 
 
 def _stats_vs_cli(name, path):

@@ -242,15 +242,35 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
     memset(&s, 0, sizeof s);
     s.nodes = 7;
     s.sah_cost = NAN;
-    o = arbor_report_tree_stats("m.obj", 12, ARBOR_ACCEL_KD, ARBOR_BUILD_MEAN, &s);
+    s.bytes = 1000;
+    o = arbor_report_tree_stats("m.obj", 12, ARBOR_ACCEL_KD, ARBOR_BUILD_MEAN, &s, ARBOR_LAYOUT_BINARY);
     keys_of(o, keys, sizeof keys);
-    TEST_ASSERT_EQUAL_STRING("model,triangles,accel,builder,build_ms,nodes,leaves,empty_leaves,max_depth,"
+    TEST_ASSERT_EQUAL_STRING("model,triangles,accel,builder,layout,build_ms,nodes,leaves,empty_leaves,max_depth,"
                              "mean_leaf_depth,mean_tris_per_leaf,refs,bytes,sah_cost",
                              keys);
     TEST_ASSERT_EQUAL_STRING("kd", cJSON_GetObjectItem(o, "accel")->valuestring);
     TEST_ASSERT_EQUAL_STRING("mean", cJSON_GetObjectItem(o, "builder")->valuestring);
+    TEST_ASSERT_EQUAL_STRING("binary", cJSON_GetObjectItem(o, "layout")->valuestring);
     TEST_ASSERT_EQUAL_DOUBLE(7.0, cJSON_GetObjectItem(o, "nodes")->valuedouble);
+    TEST_ASSERT_EQUAL_DOUBLE(1000.0, cJSON_GetObjectItem(o, "bytes")->valuedouble);
     TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "sah_cost")));
+    cJSON_Delete(o);
+    arbor_layout_stats l;
+    TEST_ASSERT_FALSE(arbor_tree_layout_stats(&s, ARBOR_LAYOUT_WIDE, &l));
+
+    /* a tree with a wide layout: its own numbers, and the binary tree's
+     * bytes are the tree's less the wide tree's */
+    s.has_wide = true;
+    s.wide.nodes = 3;
+    s.wide.bytes = 400;
+    s.wide.sah_cost = 2.5;
+    o = arbor_report_tree_stats("m.obj", 12, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH, &s, ARBOR_LAYOUT_WIDE);
+    TEST_ASSERT_EQUAL_STRING("wide", cJSON_GetObjectItem(o, "layout")->valuestring);
+    TEST_ASSERT_EQUAL_DOUBLE(3.0, cJSON_GetObjectItem(o, "nodes")->valuedouble);
+    TEST_ASSERT_EQUAL_DOUBLE(2.5, cJSON_GetObjectItem(o, "sah_cost")->valuedouble);
+    cJSON_Delete(o);
+    o = arbor_report_tree_stats("m.obj", 12, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH, &s, ARBOR_LAYOUT_BINARY);
+    TEST_ASSERT_EQUAL_DOUBLE(600.0, cJSON_GetObjectItem(o, "bytes")->valuedouble);
     cJSON_Delete(o);
 }
 

@@ -62,6 +62,19 @@ export function renderStats(el, app) {
         : stat('refs')(c)), 'duplication');
     html += row('Bytes', (c) => (c.st ? fmtBytes(c.st.bytes) : stat('bytes')(c)), 'bytes');
     html += row('SAH cost', stat('sah_cost'), 'sah_cost');
+    if (cols.some((c) => c.st && c.st.wide)) {
+        // The bvh's rays traverse its binary tree collapsed into wide nodes; a k-d tree's, the tree above.
+        html += `<tr><th colspan="${cols.length + 1}" scope="rowgroup" class="group">Traversed (wide) tree</th></tr>`;
+        const wide = (k, f) => (c) => (!c.st ? stat(k)(c) : c.st.wide ? (f || ((v) => fmt(v)))(c.st.wide[k])
+            : '<span class="muted">as above</span>');
+        html += row('Nodes', wide('nodes'), 'wide_nodes');
+        html += row('Leaves', wide('leaves'), 'wide_leaves');
+        html += row('Depth', wide('max_depth'), 'wide_max_depth');
+        html += row('Mean leaf depth', wide('mean_leaf_depth'), 'wide_mean_leaf_depth');
+        html += row('Mean tris per leaf', wide('mean_tris_per_leaf'), 'wide_mean_tris_per_leaf');
+        html += row('Bytes', wide('bytes', fmtBytes), 'wide_bytes');
+        html += row('SAH cost (packs)', wide('sah_cost'), 'wide_sah_cost');
+    }
     html += '</tbody></table></div>';
     for (const c of cols) if (c.err) html += `<p class="error small">${esc(c.err)}</p>`;
     el.innerHTML = html;

@@ -1,0 +1,87 @@
+/*
+ * bvh_wide_stats.c - the statistics of the wide tree, the layout rays
+ * traverse (bvh_internal.h), beside those of the binary tree the builders
+ * make: nodes, leaves, depth, triangles per leaf, bytes, and its SAH cost
+ * under its own cost model.
+ *
+ * The cost model is the traversal's: visiting a wide node is one SIMD slab
+ * test of all its children's boxes, and a leaf costs one SIMD triangle test
+ * per pack; each such step counts 1:
+ *
+ *     sah_cost = sum over wide nodes  A(node) / A(root)
+ *              + sum over leaves      A(leaf) / A(root) * packs(leaf)
+ *
+ * where a node's area is its box's, the union of its children's boxes (the
+ * root's too). It is the binary formula with packs for triangles, so the
+ * two layouts' costs compare: a collapse that pays adds up to less.
+ */
+#include "bvh_internal.h"
+
+/* What the walk adds up. */
+typedef struct {
+    const bvh_tree *t;
+    double root_area;
+    arbor_layout_stats *s;
+    double leaf_depths;
+} wide_sums;
+
+static arbor_aabb child_box(const bvh_wide_node *n, int c)
+{
+    arbor_aabb b = {vec3(n->box[0][c], n->box[1][c], n->box[2][c]), vec3(n->box[3][c], n->box[4][c], n->box[5][c])};
+    return b;
+}
+
+/* The box of wide node w: the union of its children's. */
+static arbor_aabb node_box(const bvh_tree *t, uint32_t w)
+{
+    arbor_aabb b = {vec3(INFINITY, INFINITY, INFINITY), vec3(-INFINITY, -INFINITY, -INFINITY)};
+    for (int c = 0; c < BVH_WIDTH; c++)
+        if (t->wide[w].child[c] != 0) {
+            arbor_aabb k = child_box(&t->wide[w], c);
+            b.lo = vec3_min(b.lo, k.lo);
+            b.hi = vec3_max(b.hi, k.hi);
+        }
+    return b;
+}
+
+/* Adds wide node w, at depth, whose box is `box`, and its subtree. */
+static void add_node(wide_sums *x, uint32_t w, arbor_aabb box, uint32_t depth)
+{
+    arbor_layout_stats *s = x->s;
+    s->nodes++;
+    s->sah_cost += bvh_area_ratio(aabb_area(box), x->root_area);
+    if (depth > s->max_depth)
+        s->max_depth = depth;
+    const bvh_wide_node *n = &x->t->wide[w];
+    for (int c = 0; c < BVH_WIDTH; c++) {
+        uint64_t ref = n->child[c];
+        if (ref == 0)
+            continue;
+        if (!bvh_ref_is_leaf(ref)) {
+            add_node(x, bvh_ref_index(ref), child_box(n, c), depth + 1);
+            continue;
+        }
+        uint32_t tris = bvh_ref_tris(ref);
+        s->nodes++;
+        s->leaves++;
+        s->refs += tris;
+        s->sah_cost += bvh_area_ratio(aabb_area(child_box(n, c)), x->root_area) * bvh_packs_for(tris);
+        x->leaf_depths += depth + 1;
+        if (depth + 1 > s->max_depth)
+            s->max_depth = depth + 1;
+    }
+}
+
+void bvh_wide_stats(const bvh_tree *t, arbor_layout_stats *s)
+{
+    *s = (arbor_layout_stats){0};
+    s->bytes = (uint64_t)t->nwide * sizeof(bvh_wide_node) +
+               (uint64_t)t->npacks * (sizeof(bvh_tri_pack) + BVH_WIDTH * sizeof(uint32_t));
+    if (t->nwide == 0)
+        return;
+    arbor_aabb root = node_box(t, 0);
+    wide_sums x = {t, aabb_area(root), s, 0.0};
+    add_node(&x, 0, root, 0);
+    s->mean_leaf_depth = s->leaves > 0 ? x.leaf_depths / (double)s->leaves : 0.0;
+    s->mean_tris_per_leaf = s->leaves > 0 ? (double)s->refs / (double)s->leaves : 0.0;
+}
