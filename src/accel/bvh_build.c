@@ -3,12 +3,19 @@
  * and binned SAH, one top-down recursion that differs only in where it
  * splits a node (choose_split).
  *
- * The build works on an array idx of triangle indices that it partitions in
- * place, so a node always owns a contiguous range idx[begin, end). Each
- * triangle's box and centroid (the centre of its box) are computed once up
- * front. The node array is allocated once for the worst case, 2N - 1 nodes
- * (every leaf holding one triangle), and nodes are written straight into
- * their depth-first slots, so no allocation happens per node.
+ * The build works on an array of triangle references (bvh_prim: a
+ * triangle's box and its index, 32 bytes) that it partitions in place, so a
+ * node always owns a contiguous range prims[begin, end) and every pass over
+ * a node reads memory in order, with no gather through an index array. The
+ * references are made once up front. A node's box and the box of its
+ * triangles' centroids (the centres of their boxes) come from its parent's
+ * partition, which computes both for each side as it moves the references,
+ * so a node costs two passes: binning and partitioning. Centroids are kept
+ * doubled (lo + hi, not halved): comparisons among them are the same and
+ * each costs one add less. The node array is allocated once for the worst
+ * case, 2N - 1 nodes (every leaf holding one triangle), and nodes are written
+ * straight into their depth-first slots; a leaf writes its triangles' mesh
+ * indices into tri_index, so no allocation happens per node.
  *
  * Splits (all on the centroids, so every triangle goes to exactly one side):
  *   spatial  the middle of the node's centroid bounds on their longest axis;
@@ -21,7 +28,10 @@
  *            suffix sums of the bins, and the cheapest plane wins (nodes of
  *            two triangles are decided directly); the node stays a leaf
  *            when splitting costs more than intersecting its triangles (and
- *            it is small enough).
+ *            it is small enough). The partition then sends each triangle to
+ *            the side of its bin, computed as the binning computed it, so the
+ *            split made is exactly the one costed (a plane position derived
+ *            from the bin edge could round a centroid into the other side).
  * When a split would leave one side empty (rounding, or everything on one
  * side of the plane) the node splits at the object median instead, which
  * always gives two non-empty halves; when all centroids coincide the range is
@@ -30,18 +40,24 @@
  *
  * Parallel build: the top levels of the recursion build their two children
  * as a parallel loop of two (accel_parallel: the calling thread and an idle
- * pool worker, if the build's budget allows). The left child is built into
- * slot s + 1 as always; the right child cannot know how many nodes the left
- * will use, so it is built into the slot its worst case would leave free,
- * s + 2 n_left, and moved down next to the left subtree after both finish.
- * Which levels fork depends only on the build's thread count, never on
- * which threads turn up, so neither do the tree and its sums.
+ * pool worker, if the build's budget allows), and bin their triangles in
+ * parallel parts whose bins are merged in a fixed order (merging boxes and
+ * counts is exact, so the bins are those of a serial pass). The left child
+ * is built into slot s + 1 as always; the right child cannot know how many
+ * nodes the left will use, so it is built into the slot its worst case would
+ * leave free, s + 2 n_left, and moved down next to the left subtree after
+ * both finish. Which levels fork depends only on the build's thread count,
+ * never on which threads turn up, so neither do the tree and its sums.
  *
  * Cancelling: every node polls the cancel flag (accel_stop); once it is set
  * each node still to be built becomes a leaf, so the recursion unwinds in
  * one pass over the triangles left, and the build then fails.
  */
+#include <assert.h>
 #include <emmintrin.h>
+#ifdef __SSE4_1__
+#include <smmintrin.h>
+#endif
 #include <stdlib.h>
 #include <string.h>
 
@@ -55,6 +71,7 @@
 #define BVH_SAH_LEAF 8
 #define BVH_SAH_BINS 32
 #define BVH_SAH_MIN_BINS 16
+#define BVH_SAH_EXACT_TRIS 16
 #define BVH_COST_TRAVERSE 1.0f
 #define BVH_COST_INTERSECT 1.0f
 /* A node forks into a parallel pair only if it has this many triangles, and
@@ -62,15 +79,34 @@
  * for every thread (a few parts per thread), no more. */
 #define BVH_FORK_MIN_TRIS 8192
 #define BVH_FORK_EXTRA_LEVELS 2
-/* Meshes this large also split the linear passes over all triangles. */
+/* Meshes this large also split the linear passes over all triangles, and
+ * top-level nodes this large bin in at most BVH_BIN_PARTS parallel parts. */
 #define BVH_PARALLEL_PASS_TRIS 65536
+#define BVH_BIN_PARTS 8
 
-/* A box as the builder keeps it: four lanes per corner, the fourth always 0,
- * so that growing a box is one 4-wide min and max that the compiler can
- * vectorise (binning, the inner loop of the SAH build, is mostly that). */
+/* A triangle reference: the triangle's box, with its mesh index in the
+ * fourth lane of lo, where a 4-wide load of lo finds it and box arithmetic
+ * ignores it (see centroid2). */
 typedef struct {
-    float lo[4], hi[4];
+    float lo[3];
+    uint32_t tri;
+    float hi[3];
+    float zero; /* 0 */
+} bvh_prim;
+
+_Static_assert(sizeof(bvh_prim) == 32, "a reference is half a cache line");
+
+/* A box as the builder keeps it, one SSE register per corner; the fourth
+ * lane means nothing. */
+typedef struct {
+    __m128 lo, hi;
 } build_box;
+
+/* What a node's parent tells it about its range of references: the box of
+ * their triangles and the box of their doubled centroids. */
+typedef struct {
+    build_box box, cbox;
+} range_box;
 
 typedef struct {
     arbor_builder builder;
@@ -78,11 +114,10 @@ typedef struct {
     uint32_t max_depth;      /* a node at this depth is always a leaf */
     uint32_t fork_depth;     /* nodes above this depth may fork */
     float cost_traverse, cost_intersect;
-    const build_box *tri_box;   /* per mesh triangle */
-    const float *centroid;      /* per mesh triangle: x, y, z of its box centre, 0 */
-    uint32_t *idx;              /* triangle indices; each task owns a range */
-    bvh_node *nodes;            /* each task owns a range of slots */
-    accel_run *run;             /* threads and cancel flag */
+    bvh_prim *prims;         /* the triangle references; each task owns a range */
+    uint32_t *tri_index;     /* leaf order, written by the leaves */
+    bvh_node *nodes;         /* each task owns a range of slots */
+    accel_run *run;          /* threads and cancel flag */
 } bvh_builder;
 
 /* What a subtree's build adds to the statistics; parallel tasks each keep
@@ -93,37 +128,57 @@ typedef struct {
     double inner_area, leaf_area;  /* sum of A(n) over inner nodes; of A(l) N(l) over leaves */
 } bvh_tally;
 
-static inline void box_empty(build_box *b)
+static inline build_box box_empty(void)
 {
-    for (int a = 0; a < 3; a++) {
-        b->lo[a] = INFINITY;
-        b->hi[a] = -INFINITY;
-    }
-    b->lo[3] = b->hi[3] = 0.0f;
+    build_box b = {_mm_set1_ps(INFINITY), _mm_set1_ps(-INFINITY)};
+    return b;
 }
 
-static inline void box_add(build_box *b, const build_box *t)
+/* The box in the first operand, so that a NaN corner spreads (minps returns
+ * its second operand when either is NaN), as arbor_minf does. */
+static inline void box_grow(build_box *b, __m128 lo, __m128 hi)
 {
-    for (int a = 0; a < 4; a++) {
-        b->lo[a] = arbor_minf(b->lo[a], t->lo[a]);
-        b->hi[a] = arbor_maxf(b->hi[a], t->hi[a]);
-    }
+    b->lo = _mm_min_ps(b->lo, lo);
+    b->hi = _mm_max_ps(b->hi, hi);
 }
 
-/* p: four floats, the fourth 0 */
-static inline void box_add_point(build_box *b, const float *p)
+static inline void box_merge(build_box *b, const build_box *with)
 {
-    for (int a = 0; a < 4; a++) {
-        b->lo[a] = arbor_minf(b->lo[a], p[a]);
-        b->hi[a] = arbor_maxf(b->hi[a], p[a]);
-    }
+    box_grow(b, with->lo, with->hi);
 }
 
-/* Surface area of a non-empty box, computed as aabb_area does. */
+/* Surface area of a non-empty box, 2 ((x y + y z) + z x) as aabb_area
+ * computes it, in registers: the SAH sweeps call this for every bin. */
 static inline float box_area(const build_box *b)
 {
-    float x = b->hi[0] - b->lo[0], y = b->hi[1] - b->lo[1], z = b->hi[2] - b->lo[2];
-    return 2.0f * (x * y + y * z + z * x);
+    __m128 d = _mm_sub_ps(b->hi, b->lo);
+    __m128 p = _mm_mul_ps(d, _mm_shuffle_ps(d, d, _MM_SHUFFLE(3, 0, 2, 1))); /* x y, y z, z x */
+    __m128 sum = _mm_add_ss(_mm_add_ss(p, _mm_shuffle_ps(p, p, _MM_SHUFFLE(1, 1, 1, 1))),
+                            _mm_shuffle_ps(p, p, _MM_SHUFFLE(2, 2, 2, 2)));
+    return 2.0f * _mm_cvtss_f32(sum);
+}
+
+static inline __m128 prim_lo(const bvh_prim *p)
+{
+    return _mm_loadu_ps(p->lo);
+}
+
+static inline __m128 prim_hi(const bvh_prim *p)
+{
+    return _mm_loadu_ps(p->hi);
+}
+
+/* lo + hi: twice the centroid, with 0 in the fourth lane (lo's lane holds
+ * the triangle index's bits, which as a float may be a denormal or NaN). */
+static inline __m128 centroid2(__m128 lo, __m128 hi)
+{
+    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
+    return _mm_add_ps(_mm_and_ps(lo, xyz), hi);
+}
+
+static inline float centroid_axis(const bvh_builder *B, uint32_t i, int axis)
+{
+    return B->prims[i].lo[axis] + B->prims[i].hi[axis];
 }
 
 static uint32_t ceil_log2(uint32_t n)
@@ -134,38 +189,36 @@ static uint32_t ceil_log2(uint32_t n)
     return k;
 }
 
-static inline float centroid_axis(const bvh_builder *B, uint32_t tri, int axis)
+/* The boxes of prims[b, e): for the splits that do not compute them as they
+ * partition (median, halving by count). */
+static void range_bounds(const bvh_builder *B, uint32_t b, uint32_t e, range_box *r)
 {
-    return B->centroid[4 * (size_t)tri + (size_t)axis];
-}
-
-/* The box of the triangles in idx[b, e) and the box of their centroids. */
-static void range_bounds(const bvh_builder *B, uint32_t b, uint32_t e, build_box *box, build_box *cbox)
-{
-    box_empty(box);
-    box_empty(cbox);
+    r->box = r->cbox = box_empty();
     for (uint32_t i = b; i < e; i++) {
-        uint32_t t = B->idx[i];
-        box_add(box, &B->tri_box[t]);
-        box_add_point(cbox, &B->centroid[4 * (size_t)t]);
+        __m128 lo = prim_lo(&B->prims[i]), hi = prim_hi(&B->prims[i]), c = centroid2(lo, hi);
+        box_grow(&r->box, lo, hi);
+        box_grow(&r->cbox, c, c);
     }
 }
 
-/* Moves the triangles of idx[b, e) whose centroid lies below pos on axis to
- * the front and returns where the others start. The one partition of every
- * builder (and of the quickselect below). */
-static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, int axis, float pos)
+static inline void prim_swap(bvh_prim *p, uint32_t i, uint32_t j)
 {
-    uint32_t *idx = B->idx;
+    bvh_prim t = p[i];
+    p[i] = p[j];
+    p[j] = t;
+}
+
+/* Moves the references of prims[b, e) whose centroid lies below pos on axis
+ * to the front and returns where the others start: quickselect's partition. */
+static uint32_t partition_below(const bvh_builder *B, uint32_t b, uint32_t e, int axis, float pos)
+{
     uint32_t m = b;
-    /* invariant: idx[b, m) below pos, idx[m, i) not below. Every element is
-     * swapped and m advances by the comparison's value: no branch on it,
+    /* invariant: prims[b, m) below pos, prims[m, i) not below. Every element
+     * is swapped and m advances by the comparison's value: no branch on it,
      * which would be mispredicted half the time near the root. */
     for (uint32_t i = b; i < e; i++) {
-        uint32_t t = idx[i];
-        uint32_t below = centroid_axis(B, t, axis) < pos;
-        idx[i] = idx[m];
-        idx[m] = t;
+        uint32_t below = centroid_axis(B, i, axis) < pos;
+        prim_swap(B->prims, i, m);
         m += below;
     }
     return m;
@@ -176,17 +229,18 @@ static float median_of_three(float a, float b, float c)
     return arbor_maxf(arbor_minf(a, b), arbor_minf(arbor_maxf(a, b), c));
 }
 
-/* Quickselect (Hoare's FIND): reorders idx[b, e) so that the triangle with
- * the k-th smallest centroid on axis is at k, none larger before it and none
- * smaller after it. Expected O(e - b). Each round splits the range three
- * ways (below, equal to, above the pivot), so equal centroids cannot stall it. */
+/* Quickselect (Hoare's FIND): reorders prims[b, e) so that the reference
+ * with the k-th smallest centroid on axis is at k, none larger before it and
+ * none smaller after it. Expected O(e - b). Each round splits the range
+ * three ways (below, equal to, above the pivot), so equal centroids cannot
+ * stall it. */
 static void select_nth(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t k, int axis)
 {
     while (e - b > 1) {
-        float pivot = median_of_three(centroid_axis(B, B->idx[b], axis), centroid_axis(B, B->idx[b + (e - b) / 2], axis),
-                                      centroid_axis(B, B->idx[e - 1], axis));
-        uint32_t lt = partition(B, b, e, axis, pivot);
-        uint32_t le = partition(B, lt, e, axis, nextafterf(pivot, INFINITY));
+        float pivot = median_of_three(centroid_axis(B, b, axis), centroid_axis(B, b + (e - b) / 2, axis),
+                                      centroid_axis(B, e - 1, axis));
+        uint32_t lt = partition_below(B, b, e, axis, pivot);
+        uint32_t le = partition_below(B, lt, e, axis, nextafterf(pivot, INFINITY));
         if (k < lt)
             e = lt;
         else if (k >= le)
@@ -198,28 +252,198 @@ static void select_nth(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t k,
     }
 }
 
+/* Splits prims[b, e) at m and measures both halves. */
+static uint32_t split_at(const bvh_builder *B, uint32_t b, uint32_t m, uint32_t e, range_box kids[2])
+{
+    range_bounds(B, b, m, &kids[0]);
+    range_bounds(B, m, e, &kids[1]);
+    return m;
+}
+
 /* The object median split on axis: both halves non-empty for e - b >= 2. */
-static uint32_t split_median(const bvh_builder *B, uint32_t b, uint32_t e, int axis)
+static uint32_t split_median(const bvh_builder *B, uint32_t b, uint32_t e, int axis, range_box kids[2])
 {
     uint32_t m = b + (e - b) / 2;
     select_nth(B, b, e, m, axis);
-    return m;
+    return split_at(B, b, m, e, kids);
 }
 
 static float centroid_mean(const bvh_builder *B, uint32_t b, uint32_t e, int axis)
 {
     double sum = 0.0;
     for (uint32_t i = b; i < e; i++)
-        sum += centroid_axis(B, B->idx[i], axis);
+        sum += centroid_axis(B, i, axis);
     return (float)(sum / (double)(e - b));
 }
 
-/* The bins of the three axes: boxes (32 bytes, so aligned ones never straddle
- * a cache line) and triangle counts. */
+/* The bins of a node: nbins bins per axis over its centroid box, bin
+ * (c - lo) * scale clamped to [0, nbins - 1]. */
 typedef struct {
-    _Alignas(64) build_box box[3][BVH_SAH_BINS];
+    __m128 lo, scale, last;
+    uint32_t nbins;
+} bin_grid;
+
+/* The bins of centroid c on the three axes (lane 3 meaningless), without
+ * branches; maxps returns 0 for a NaN, which lands in bin 0. The binning and
+ * the partition both use this, so they agree on every triangle's side. */
+static inline __m128i bin_of(const bin_grid *g, __m128 c)
+{
+    __m128 f = _mm_mul_ps(_mm_sub_ps(c, g->lo), g->scale);
+    return _mm_cvttps_epi32(_mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), g->last));
+}
+
+/* A split to partition by: a side per triangle, either by the bin of its
+ * centroid on axis (left: bins below limit_bin, which is the costed plane
+ * + 1) or by its position (left: below limit_pos), both in every lane. */
+typedef struct {
+    int axis;
+    bool by_bin;
+    const bin_grid *grid;
+    __m128i limit_bin;
+    __m128 limit_pos;
+} split_rule;
+
+static inline uint32_t goes_left(const split_rule *r, __m128 c)
+{
+    __m128 below = r->by_bin ? _mm_castsi128_ps(_mm_cmplt_epi32(bin_of(r->grid, c), r->limit_bin))
+                             : _mm_cmplt_ps(c, r->limit_pos);
+    return (uint32_t)_mm_movemask_ps(below) >> r->axis & 1;
+}
+
+/* mask ? a : b, lane by lane (mask lanes all ones or all zeros). */
+static inline __m128 select4(__m128 mask, __m128 a, __m128 b)
+{
+#ifdef __SSE4_1__
+    return _mm_blendv_ps(b, a, mask);
+#else
+    return _mm_or_ps(_mm_and_ps(mask, a), _mm_andnot_ps(mask, b));
+#endif
+}
+
+/* Grows the side the mask selects by a reference's box and centroid: the
+ * other side grows by an empty box, so neither needs a branch. */
+static inline void side_grow(range_box *r, __m128 mask, __m128 lo, __m128 hi, __m128 c)
+{
+    const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
+    box_grow(&r->box, select4(mask, lo, inf), select4(mask, hi, ninf));
+    box_grow(&r->cbox, select4(mask, c, inf), select4(mask, c, ninf));
+}
+
+/* Moves the references of prims[b, e) that go left by rule to the front,
+ * computing both sides' boxes on the way; returns where the right side
+ * starts (b or e when one side is empty; kids are then meaningless). */
+static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, const split_rule *rule, range_box kids[2])
+{
+    bvh_prim *p = B->prims;
+    range_box left = {box_empty(), box_empty()}, right = left;
+    uint32_t m = b;
+    /* invariant: prims[b, m) go left, prims[m, i) go right. Every element
+     * is swapped and m advances by the side, without a branch on it (see
+     * partition_below); the swap moves the registers already loaded, whole
+     * 16-byte halves, which later loads can take straight from the stores. */
+    for (uint32_t i = b; i < e; i++) {
+        __m128 lo = prim_lo(&p[i]), hi = prim_hi(&p[i]), c = centroid2(lo, hi);
+        uint32_t goes = goes_left(rule, c);
+        __m128 mask = _mm_castsi128_ps(_mm_set1_epi32(-(int32_t)goes));
+        side_grow(&left, mask, lo, hi, c);
+        side_grow(&right, _mm_xor_ps(mask, _mm_castsi128_ps(_mm_set1_epi32(-1))), lo, hi, c);
+        __m128 mlo = prim_lo(&p[m]), mhi = prim_hi(&p[m]);
+        _mm_storeu_ps(p[m].lo, lo);
+        _mm_storeu_ps(p[m].hi, hi);
+        _mm_storeu_ps(p[i].lo, mlo);
+        _mm_storeu_ps(p[i].hi, mhi);
+        m += goes;
+    }
+    kids[0] = left;
+    kids[1] = right;
+    return m;
+}
+
+/* The bins of the three axes: boxes and triangle counts. */
+typedef struct {
+    build_box box[3][BVH_SAH_BINS];
     uint32_t count[3][BVH_SAH_BINS];
 } sah_bins;
+
+static void bins_clear(sah_bins *s, uint32_t nbins)
+{
+    for (int k = 0; k < 3; k++)
+        for (uint32_t j = 0; j < nbins; j++)
+            s->box[k][j] = box_empty();
+    memset(s->count, 0, sizeof s->count);
+}
+
+static void bins_merge(sah_bins *to, const sah_bins *from, uint32_t nbins)
+{
+    for (int k = 0; k < 3; k++)
+        for (uint32_t j = 0; j < nbins; j++) {
+            box_merge(&to->box[k][j], &from->box[k][j]);
+            to->count[k][j] += from->count[k][j];
+        }
+}
+
+static inline void bin_prim(sah_bins *s, const bin_grid *g, const bvh_prim *p)
+{
+    __m128 lo = prim_lo(p), hi = prim_hi(p);
+    uint32_t j[4];
+    _mm_storeu_si128((__m128i *)j, bin_of(g, centroid2(lo, hi)));
+    for (int k = 0; k < 3; k++) {
+        box_grow(&s->box[k][j[k]], lo, hi);
+        s->count[k][j[k]]++;
+    }
+}
+
+/* Bins prims[b, e) into s, cleared: the build's hottest loop. The three
+ * axes' bins come from one SSE computation and the reference is loaded once
+ * for the three bins it grows. (Binning alternate references into two sets
+ * of bins, to shorten the chains of updates to one bin, measured no faster.) */
+static void bins_fill(sah_bins *s, const bin_grid *g, const bvh_prim *p, uint32_t b, uint32_t e)
+{
+    bins_clear(s, g->nbins);
+    for (uint32_t i = b; i < e; i++)
+        bin_prim(s, g, &p[i]);
+}
+
+/* One part of a parallel binning: prims[b, e) into its own bins. */
+typedef struct {
+    const bvh_builder *B;
+    const bin_grid *grid;
+    uint32_t b, e;
+    sah_bins bins;
+} bin_part;
+
+/* Part number `i` of the array `parts`. */
+static void bin_part_run(void *parts, uint32_t i)
+{
+    bin_part *p = (bin_part *)parts + i;
+    bins_fill(&p->bins, p->grid, p->B->prims, p->b, p->e);
+}
+
+/* Bins prims[b, e) into s. A large node at the top levels bins in parallel
+ * parts, merged in order: the same bins as one pass would fill (serially
+ * when the parts' memory cannot be had). */
+static void bins_build(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, const bin_grid *g, sah_bins *s)
+{
+    uint32_t nparts = B->run->threads < BVH_BIN_PARTS ? B->run->threads : BVH_BIN_PARTS;
+    bin_part *parts = NULL;
+    if (nparts > 1 && depth < B->fork_depth && e - b >= BVH_PARALLEL_PASS_TRIS)
+        parts = malloc(nparts * sizeof *parts);
+    if (parts == NULL) {
+        bins_fill(s, g, B->prims, b, e);
+        return;
+    }
+    for (uint32_t i = 0; i < nparts; i++) {
+        parts[i].B = B;
+        parts[i].grid = g;
+        parts[i].b = b + (uint32_t)((uint64_t)(e - b) * i / nparts);
+        parts[i].e = b + (uint32_t)((uint64_t)(e - b) * (i + 1) / nparts);
+    }
+    accel_parallel(B->run, nparts, bin_part_run, parts);
+    *s = parts[0].bins;
+    for (uint32_t i = 1; i < nparts; i++)
+        bins_merge(s, &parts[i].bins, g->nbins);
+    free(parts);
+}
 
 /* The cheapest plane of one axis' bins by the sum A(l) N(l) + A(r) N(r):
  * sets *plane (the plane after bin *plane) and returns the sum, or INFINITY
@@ -230,13 +454,12 @@ static float sah_sweep(const build_box *box, const uint32_t *count, uint32_t nbi
     /* right[j], right_count[j]: A N and N of the bins after plane j */
     float right[BVH_SAH_BINS];
     uint32_t right_count[BVH_SAH_BINS];
-    build_box acc;
-    box_empty(&acc);
+    build_box acc = box_empty();
     uint32_t n = 0;
     float an = 0.0f;
     for (uint32_t j = nbins - 1; j > 0; j--) {
         if (count[j] > 0) {
-            box_add(&acc, &box[j]);
+            box_merge(&acc, &box[j]);
             n += count[j];
             an = box_area(&acc) * (float)n;
         }
@@ -244,12 +467,12 @@ static float sah_sweep(const build_box *box, const uint32_t *count, uint32_t nbi
         right_count[j - 1] = n;
     }
     float best = INFINITY;
-    box_empty(&acc);
+    acc = box_empty();
     n = 0;
     for (uint32_t j = 0; j + 1 < nbins; j++) {
         if (count[j] == 0)
             continue;
-        box_add(&acc, &box[j]);
+        box_merge(&acc, &box[j]);
         n += count[j];
         if (right_count[j] == 0)
             break;
@@ -262,144 +485,203 @@ static float sah_sweep(const build_box *box, const uint32_t *count, uint32_t nbi
     return best;
 }
 
-/* Binned SAH over the three axes of idx[b, e), whose box has area `area` and
- * whose centroids span cbox (not a single point). Sets *axis and *pos to the
- * cheapest plane and returns whether splitting there beats a leaf, by the
- * cost model Ct A(n) + Ci (A(l) N(l) + A(r) N(r)) against Ci A(n) N(n)
- * (the usual one multiplied through by A(n), so flat nodes need no division).
- * *axis and *pos stay as they came if no plane has triangles on both sides.
- * Nodes of fewer than BVH_SAH_BINS triangles use as many bins as they have
- * triangles, but at least BVH_SAH_MIN_BINS: more would be mostly empty. */
-static bool sah_choose(const bvh_builder *B, uint32_t b, uint32_t e, float area, const build_box *cbox, int *axis,
-                       float *pos)
+/* Binned SAH over the three axes of prims[b, e), whose box has area `area`
+ * and whose centroids span cbox (not a single point). Returns whether
+ * splitting at the cheapest plane beats a leaf, by the cost model
+ * Ct A(n) + Ci (A(l) N(l) + A(r) N(r)) against Ci A(n) N(n) (the usual one
+ * multiplied through by A(n), so flat nodes need no division), and if so
+ * partitions there (*m: where the right side starts; b or e when no plane
+ * has triangles on both sides). Nodes of fewer than BVH_SAH_BINS triangles
+ * use as many bins as they have triangles, but at least BVH_SAH_MIN_BINS:
+ * more would be mostly empty. */
+static bool sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, float area,
+                      const build_box *cbox, range_box kids[2], uint32_t *m)
 {
     uint32_t n = e - b;
-    uint32_t nbins = n < BVH_SAH_BINS ? (n > BVH_SAH_MIN_BINS ? n : BVH_SAH_MIN_BINS) : BVH_SAH_BINS;
-    sah_bins bins;
-    const float *lo = cbox->lo;
-    float scale[3];
+    bin_grid g;
+    g.nbins = n < BVH_SAH_BINS ? (n > BVH_SAH_MIN_BINS ? n : BVH_SAH_MIN_BINS) : BVH_SAH_BINS;
+    float lo[4], hi[4], scale[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    _mm_storeu_ps(lo, cbox->lo);
+    _mm_storeu_ps(hi, cbox->hi);
     for (int k = 0; k < 3; k++) {
-        float ext = cbox->hi[k] - lo[k];
-        scale[k] = ext > 0.0f ? (float)nbins / ext : 0.0f;
-        for (uint32_t j = 0; j < nbins; j++) {
-            box_empty(&bins.box[k][j]);
-            bins.count[k][j] = 0;
-        }
+        float ext = hi[k] - lo[k];
+        scale[k] = ext > 0.0f ? (float)g.nbins / ext : 0.0f;
     }
-    /* The binning loop, the build's hottest: the three axes' bin indices in
-     * one SSE computation, (c - lo) * scale clamped to [0, nbins - 1] without
-     * branches (maxps returns 0 for a NaN, which lands in bin 0), and the
-     * triangle's box loaded once for the three bins it grows. */
-    const __m128 lo4 = _mm_loadu_ps(lo), scale4 = _mm_setr_ps(scale[0], scale[1], scale[2], 0.0f);
-    const __m128 last4 = _mm_set1_ps((float)(nbins - 1));
-    for (uint32_t i = b; i < e; i++) {
-        uint32_t t = B->idx[i];
-        __m128 f = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(&B->centroid[4 * (size_t)t]), lo4), scale4);
-        f = _mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), last4);
-        uint32_t j[4];
-        _mm_storeu_si128((__m128i *)j, _mm_cvttps_epi32(f));
-        const __m128 tlo = _mm_loadu_ps(B->tri_box[t].lo), thi = _mm_loadu_ps(B->tri_box[t].hi);
-        for (int k = 0; k < 3; k++) {
-            build_box *bin = &bins.box[k][j[k]];
-            bins.count[k][j[k]]++;
-            _mm_storeu_ps(bin->lo, _mm_min_ps(_mm_loadu_ps(bin->lo), tlo));
-            _mm_storeu_ps(bin->hi, _mm_max_ps(_mm_loadu_ps(bin->hi), thi));
-        }
-    }
+    g.lo = cbox->lo;
+    g.scale = _mm_loadu_ps(scale);
+    g.last = _mm_set1_ps((float)(g.nbins - 1));
+    sah_bins bins;
+    bins_build(B, b, e, depth, &g, &bins);
     float best = INFINITY;
+    split_rule rule = {0, true, &g, _mm_setzero_si128(), _mm_setzero_ps()};
     for (int k = 0; k < 3; k++) {
         uint32_t plane = 0;
-        float cost = scale[k] > 0.0f ? sah_sweep(bins.box[k], bins.count[k], nbins, &plane) : INFINITY;
+        float cost = scale[k] > 0.0f ? sah_sweep(bins.box[k], bins.count[k], g.nbins, &plane) : INFINITY;
         if (cost < best) {
             best = cost;
-            *axis = k;
-            *pos = lo[k] + (float)(plane + 1) / scale[k];
+            rule.axis = k;
+            rule.limit_bin = _mm_set1_epi32((int)plane + 1);
         }
     }
     double split_cost = (double)B->cost_traverse * area + (double)B->cost_intersect * best;
-    double leaf_cost = (double)B->cost_intersect * area * (double)(e - b);
-    return split_cost < leaf_cost || e - b > B->max_leaf;
+    double leaf_cost = (double)B->cost_intersect * area * (double)n;
+    if (!(split_cost < leaf_cost) && n <= B->max_leaf)
+        return false;
+    *m = best < INFINITY ? partition(B, b, e, &rule, kids) : b;
+    return true;
+}
+
+/* The SAH for a node of at most BVH_SAH_EXACT_TRIS triangles: every plane
+ * between two neighbours in centroid order on each axis (the full object
+ * SAH, which bins only approximate), by the same cost model as sah_split's,
+ * and partitioning there (*m: where the right side starts, b when no plane
+ * has a finite cost). Near the leaves, where most nodes are, this costs less
+ * than clearing and sweeping bins, and finds planes at least as cheap. */
+static bool sah_split_small(const bvh_builder *B, uint32_t b, uint32_t e, float area, range_box kids[2], uint32_t *m)
+{
+    uint32_t n = e - b;
+    bvh_prim *p = B->prims + b;
+    assert(n <= BVH_SAH_EXACT_TRIS);
+    /* order[k]: the node's references by centroid on axis k, ties by place */
+    uint8_t order[3][BVH_SAH_EXACT_TRIS];
+    float key[BVH_SAH_EXACT_TRIS], right[BVH_SAH_EXACT_TRIS];
+    float best = INFINITY;
+    int best_axis = 0;
+    uint32_t best_count = 0;
+    for (int k = 0; k < 3; k++) {
+        for (uint32_t i = 0; i < n; i++) {
+            float c = p[i].lo[k] + p[i].hi[k];
+            uint32_t j = i;
+            for (; j > 0 && c < key[j - 1]; j--) {
+                key[j] = key[j - 1];
+                order[k][j] = order[k][j - 1];
+            }
+            key[j] = c;
+            order[k][j] = (uint8_t)i;
+        }
+        /* right[i]: A N of the references from the i-th on */
+        build_box acc = box_empty();
+        for (uint32_t i = n - 1; i > 0; i--) {
+            box_grow(&acc, prim_lo(&p[order[k][i]]), prim_hi(&p[order[k][i]]));
+            right[i] = box_area(&acc) * (float)(n - i);
+        }
+        acc = box_empty();
+        for (uint32_t i = 1; i < n; i++) {
+            box_grow(&acc, prim_lo(&p[order[k][i - 1]]), prim_hi(&p[order[k][i - 1]]));
+            float cost = box_area(&acc) * (float)i + right[i];
+            if (cost < best) {
+                best = cost;
+                best_axis = k;
+                best_count = i;
+            }
+        }
+    }
+    double split_cost = (double)B->cost_traverse * area + (double)B->cost_intersect * best;
+    double leaf_cost = (double)B->cost_intersect * area * (double)n;
+    if (!(split_cost < leaf_cost) && n <= B->max_leaf)
+        return false;
+    if (best == INFINITY) {
+        *m = b;
+        return true;
+    }
+    bvh_prim sorted[BVH_SAH_EXACT_TRIS];
+    for (uint32_t i = 0; i < n; i++)
+        sorted[i] = p[order[best_axis][i]];
+    memcpy(p, sorted, n * sizeof *p);
+    *m = split_at(B, b, b + best_count, e, kids);
+    return true;
 }
 
 /* The SAH decision for a node of two triangles whose centroids differ: the
  * only split puts one on each side, which binning on any axis where they
- * differ finds too; it is taken by the same cost model as sah_choose's.
+ * differ finds too; it is taken by the same cost model as sah_split's.
  * Returns the split index (b + 1, the triangle with the smaller centroid on
  * the first such axis first) or 0 for a leaf. Two triangles is the commonest
  * node size near the leaves, and clearing and sweeping bins for them cost
  * more than their binning. */
-static uint32_t sah_split_pair(const bvh_builder *B, uint32_t b, float area, const build_box *cbox)
+static uint32_t sah_split_pair(const bvh_builder *B, uint32_t b, float area, const build_box *cbox,
+                               range_box kids[2])
 {
-    uint32_t *idx = B->idx;
+    range_bounds(B, b, b + 1, &kids[0]);
+    range_bounds(B, b + 1, b + 2, &kids[1]);
     double split_cost = (double)B->cost_traverse * area +
-                        (double)B->cost_intersect * ((double)box_area(&B->tri_box[idx[b]]) +
-                                                     (double)box_area(&B->tri_box[idx[b + 1]]));
+                        (double)B->cost_intersect * ((double)box_area(&kids[0].box) + (double)box_area(&kids[1].box));
     double leaf_cost = (double)B->cost_intersect * area * 2.0;
     if (!(split_cost < leaf_cost) && B->max_leaf >= 2)
         return 0;
-    int axis = cbox->hi[0] > cbox->lo[0] ? 0 : cbox->hi[1] > cbox->lo[1] ? 1 : 2;
-    if (centroid_axis(B, idx[b + 1], axis) < centroid_axis(B, idx[b], axis)) {
-        uint32_t t = idx[b];
-        idx[b] = idx[b + 1];
-        idx[b + 1] = t;
+    float lo[4], hi[4];
+    _mm_storeu_ps(lo, cbox->lo);
+    _mm_storeu_ps(hi, cbox->hi);
+    int axis = hi[0] > lo[0] ? 0 : hi[1] > lo[1] ? 1 : 2;
+    if (centroid_axis(B, b + 1, axis) < centroid_axis(B, b, axis)) {
+        prim_swap(B->prims, b, b + 1);
+        range_box t = kids[0];
+        kids[0] = kids[1];
+        kids[1] = t;
     }
     return b + 1;
 }
 
-/* Where the node over idx[b, e) at depth `depth` splits: the index in (b, e)
- * where its right child's triangles start, or 0 (never such an index) for a
- * leaf. Reorders idx[b, e) to match. */
+/* Where the node over prims[b, e) at depth `depth`, with boxes r, splits:
+ * the index in (b, e) where its right child's references start, or 0 (never
+ * such an index) for a leaf. Reorders prims[b, e) to match and sets the
+ * children's boxes. */
 static uint32_t choose_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, float area,
-                             const build_box *cbox)
+                             const range_box *r, range_box kids[2])
 {
     uint32_t n = e - b;
-    arbor_vec3 ext = vec3(cbox->hi[0] - cbox->lo[0], cbox->hi[1] - cbox->lo[1], cbox->hi[2] - cbox->lo[2]);
-    if (ext.x <= 0.0f && ext.y <= 0.0f && ext.z <= 0.0f)
-        return n > B->max_leaf ? b + n / 2 : 0; /* one centroid: any halving is as good */
+    float lo[4], hi[4];
+    _mm_storeu_ps(lo, r->cbox.lo);
+    _mm_storeu_ps(hi, r->cbox.hi);
+    arbor_vec3 ext = vec3(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
+    if (ext.x <= 0.0f && ext.y <= 0.0f && ext.z <= 0.0f) /* one centroid: any halving is as good */
+        return n > B->max_leaf ? split_at(B, b, b + n / 2, e, kids) : 0;
     int axis = vec3_max_axis(ext);
-    float pos = 0.5f * (cbox->lo[axis] + cbox->hi[axis]);
+    split_rule rule = {axis, false, NULL, _mm_setzero_si128(), _mm_set1_ps(0.5f * (lo[axis] + hi[axis]))};
     /* Past this depth only median splits are sure to end by BVH_MAX_DEPTH - 1:
      * each halves the count, so n triangles need ceil(log2 n) more levels. */
     if (depth + 1 + ceil_log2(n) > BVH_MAX_DEPTH - 1)
-        return split_median(B, b, e, axis);
+        return split_median(B, b, e, axis, kids);
     uint32_t m;
     switch (B->builder) {
     case ARBOR_BUILD_SAH:
         if (n == 2)
-            return sah_split_pair(B, b, area, cbox);
-        if (!sah_choose(B, b, e, area, cbox, &axis, &pos))
+            return sah_split_pair(B, b, area, &r->cbox, kids);
+        if (!(n <= BVH_SAH_EXACT_TRIS ? sah_split_small(B, b, e, area, kids, &m)
+                                      : sah_split(B, b, e, depth, area, &r->cbox, kids, &m)))
             return 0;
-        m = partition(B, b, e, axis, pos);
         break;
     case ARBOR_BUILD_SPATIAL:
         if (n <= B->max_leaf)
             return 0;
-        m = partition(B, b, e, axis, pos);
+        m = partition(B, b, e, &rule, kids);
         break;
     case ARBOR_BUILD_MEAN:
         if (n <= B->max_leaf)
             return 0;
-        m = partition(B, b, e, axis, centroid_mean(B, b, e, axis));
+        rule.limit_pos = _mm_set1_ps(centroid_mean(B, b, e, axis));
+        m = partition(B, b, e, &rule, kids);
         break;
     case ARBOR_BUILD_MEDIAN:
     default:
         if (n <= B->max_leaf)
             return 0;
-        return split_median(B, b, e, axis);
+        return split_median(B, b, e, axis, kids);
     }
-    /* a plane with every centroid on one side (rounding at a bin edge or a
-     * mean that rounds to the smallest value): fall back to the median */
+    /* a plane with every centroid on one side (a mean that rounds to the
+     * smallest value, or bins of one axis only): fall back to the median */
     if (m == b || m == e)
-        m = split_median(B, b, e, axis);
+        m = split_median(B, b, e, axis, kids);
     return m;
 }
 
 static uint32_t build_subtree(const bvh_builder *B, uint32_t s, uint32_t b, uint32_t e, uint32_t depth,
-                              bvh_tally *tally);
+                              const range_box *r, bvh_tally *tally);
 
 typedef struct {
     const bvh_builder *B;
     uint32_t slot, begin, end, depth;
+    range_box bounds;
     bvh_tally tally;
     uint32_t used;
 } build_task;
@@ -408,7 +690,7 @@ typedef struct {
 static void build_task_run(void *tasks, uint32_t i)
 {
     build_task *t = (build_task *)tasks + i;
-    t->used = build_subtree(t->B, t->slot, t->begin, t->end, t->depth, &t->tally);
+    t->used = build_subtree(t->B, t->slot, t->begin, t->end, t->depth, &t->bounds, &t->tally);
 }
 
 static void tally_add(bvh_tally *to, const bvh_tally *from)
@@ -432,15 +714,16 @@ static void move_subtree(bvh_node *nodes, uint32_t from, uint32_t to, uint32_t c
             nodes[i].index -= from - to;
 }
 
-/* Builds the children of inner node s over idx[b, m) and idx[m, e) as a
- * parallel pair; returns the nodes they used. */
+/* Builds the children of inner node s over prims[b, m) and prims[m, e), with
+ * boxes kids, as a parallel pair; returns the nodes they used. */
 static uint32_t build_children_parallel(const bvh_builder *B, uint32_t s, uint32_t b, uint32_t m, uint32_t e,
-                                        uint32_t depth, bvh_tally *tally)
+                                        uint32_t depth, const range_box kids[2], bvh_tally *tally)
 {
     /* the left subtree uses at most 2 (m - b) - 1 slots */
-    build_task kids[2] = {{B, s + 1, b, m, depth + 1, {0}, 0}, {B, s + 2 * (m - b), m, e, depth + 1, {0}, 0}};
-    accel_parallel(B->run, 2, build_task_run, kids);
-    const build_task *left = &kids[0], *right = &kids[1];
+    build_task pair[2] = {{B, s + 1, b, m, depth + 1, kids[0], {0}, 0},
+                          {B, s + 2 * (m - b), m, e, depth + 1, kids[1], {0}, 0}};
+    accel_parallel(B->run, 2, build_task_run, pair);
+    const build_task *left = &pair[0], *right = &pair[1];
     uint32_t right_slot = s + 1 + left->used;
     if (right_slot != right->slot)
         move_subtree(B->nodes, right->slot, right_slot, right->used);
@@ -450,25 +733,30 @@ static uint32_t build_children_parallel(const bvh_builder *B, uint32_t s, uint32
     return left->used + right->used;
 }
 
-/* Builds the subtree over idx[b, e) with its root in slot s at `depth`, in
- * depth-first order from s; returns the number of nodes it used (at most
- * 2 (e - b) - 1). */
+/* Builds the subtree over prims[b, e), whose boxes are r, with its root in
+ * slot s at `depth`, in depth-first order from s; returns the number of
+ * nodes it used (at most 2 (e - b) - 1). */
 static uint32_t build_subtree(const bvh_builder *B, uint32_t s, uint32_t b, uint32_t e, uint32_t depth,
-                              bvh_tally *tally)
+                              const range_box *r, bvh_tally *tally)
 {
-    build_box box, cbox;
-    range_bounds(B, b, e, &box, &cbox);
     bvh_node *node = &B->nodes[s];
+    float lo[4], hi[4];
+    _mm_storeu_ps(lo, r->box.lo);
+    _mm_storeu_ps(hi, r->box.hi);
     for (int a = 0; a < 3; a++) {
-        node->bounds[a] = box.lo[a];
-        node->bounds[3 + a] = box.hi[a];
+        node->bounds[a] = lo[a];
+        node->bounds[3 + a] = hi[a];
     }
-    float area = box_area(&box);
-    uint32_t m = e - b > 1 && depth < B->max_depth && !accel_stop(B->run) ? choose_split(B, b, e, depth, area, &cbox)
-                                                                          : 0;
+    float area = box_area(&r->box);
+    range_box kids[2];
+    uint32_t m = e - b > 1 && depth < B->max_depth && !accel_stop(B->run)
+                     ? choose_split(B, b, e, depth, area, r, kids)
+                     : 0;
     if (m == 0) {
         node->index = b;
         node->count = e - b;
+        for (uint32_t i = b; i < e; i++)
+            B->tri_index[i] = B->prims[i].tri;
         tally->leaves++;
         tally->refs += e - b;
         tally->leaf_depth_sum += depth;
@@ -480,10 +768,10 @@ static uint32_t build_subtree(const bvh_builder *B, uint32_t s, uint32_t b, uint
     tally->inner++;
     tally->inner_area += area;
     if (depth < B->fork_depth && e - b >= BVH_FORK_MIN_TRIS)
-        return 1 + build_children_parallel(B, s, b, m, e, depth, tally);
-    uint32_t left = build_subtree(B, s + 1, b, m, depth + 1, tally);
+        return 1 + build_children_parallel(B, s, b, m, e, depth, kids, tally);
+    uint32_t left = build_subtree(B, s + 1, b, m, depth + 1, &kids[0], tally);
     node->index = s + 1 + left;
-    return 1 + left + build_subtree(B, s + 1 + left, m, e, depth + 1, tally);
+    return 1 + left + build_subtree(B, s + 1 + left, m, e, depth + 1, &kids[1], tally);
 }
 
 static void tally_to_stats(const bvh_tally *t, const bvh_tree *tree, double root_area, arbor_tree_stats *s)
@@ -514,42 +802,51 @@ void bvh_tree_free(bvh_tree *t)
     free(t);
 }
 
-/* A linear pass over mesh triangles [b, e), which large meshes split in two
- * parallel halves. */
+/* The references of mesh triangles [b, e) and their boxes: a linear pass,
+ * which large meshes split in two parallel halves. */
 typedef struct {
     const arbor_mesh *m;
-    build_box *tri_box;
-    float *centroid;
-    bvh_tree *tree;
+    bvh_prim *prims;
     uint32_t b, e;
-} tri_pass;
+    range_box bounds;
+} prim_pass;
 
-/* Each triangle's box and centroid, once for the whole build: pass number
- * `half` of the array `passes`. */
-static void precompute_triangles(void *passes, uint32_t half)
+/* Pass number `half` of the array `passes`. */
+static void make_prims(void *passes, uint32_t half)
 {
-    const tri_pass *p = (const tri_pass *)passes + half;
+    prim_pass *p = (prim_pass *)passes + half;
+    p->bounds.box = p->bounds.cbox = box_empty();
     for (uint32_t t = p->b; t < p->e; t++) {
         arbor_vec3 v[3];
         arbor_mesh_tri(p->m, t, &v[0], &v[1], &v[2]);
-        build_box *box = &p->tri_box[t];
-        box_empty(box);
-        for (int k = 0; k < 3; k++) {
-            const float q[4] = {v[k].x, v[k].y, v[k].z, 0.0f};
-            box_add_point(box, q);
-        }
-        for (int a = 0; a < 4; a++)
-            p->centroid[4 * (size_t)t + a] = 0.5f * (box->lo[a] + box->hi[a]);
-        p->tree->tri_index[t] = t;
+        bvh_prim *prim = &p->prims[t];
+        prim->lo[0] = arbor_minf(arbor_minf(v[0].x, v[1].x), v[2].x);
+        prim->lo[1] = arbor_minf(arbor_minf(v[0].y, v[1].y), v[2].y);
+        prim->lo[2] = arbor_minf(arbor_minf(v[0].z, v[1].z), v[2].z);
+        prim->hi[0] = arbor_maxf(arbor_maxf(v[0].x, v[1].x), v[2].x);
+        prim->hi[1] = arbor_maxf(arbor_maxf(v[0].y, v[1].y), v[2].y);
+        prim->hi[2] = arbor_maxf(arbor_maxf(v[0].z, v[1].z), v[2].z);
+        prim->tri = t;
+        prim->zero = 0.0f;
+        __m128 lo = prim_lo(prim), hi = prim_hi(prim), c = centroid2(lo, hi);
+        box_grow(&p->bounds.box, lo, hi);
+        box_grow(&p->bounds.cbox, c, c);
     }
 }
 
-/* Runs pass over all triangles, in two parallel halves when parallel. */
-static void tri_pass_run(accel_run *run, void (*pass)(void *passes, uint32_t half), tri_pass whole, bool parallel)
+/* Makes every reference, in two parallel halves when parallel; returns the
+ * root's boxes. */
+static range_box prims_make(accel_run *run, const arbor_mesh *m, bvh_prim *prims, bool parallel)
 {
-    tri_pass halves[2] = {whole, whole};
-    halves[0].e = halves[1].b = whole.e / 2;
-    accel_parallel(run, parallel ? 2 : 1, pass, parallel ? halves : &whole);
+    prim_pass halves[2] = {{.m = m, .prims = prims, .b = 0, .e = m->ntris / 2},
+                           {.m = m, .prims = prims, .b = m->ntris / 2, .e = m->ntris}};
+    prim_pass whole = {.m = m, .prims = prims, .b = 0, .e = m->ntris};
+    accel_parallel(run, parallel ? 2 : 1, make_prims, parallel ? halves : &whole);
+    if (!parallel)
+        return whole.bounds;
+    box_merge(&halves[0].bounds.box, &halves[1].bounds.box);
+    box_merge(&halves[0].bounds.cbox, &halves[1].bounds.cbox);
+    return halves[0].bounds;
 }
 
 static void builder_init(bvh_builder *B, const arbor_build_opts *o, accel_run *run)
@@ -606,29 +903,26 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, 
     }
     bvh_builder B;
     builder_init(&B, o, run);
-    build_box *tri_box = malloc(n * sizeof *tri_box);
-    float *centroid = malloc(4 * (size_t)n * sizeof *centroid);
+    bvh_prim *prims = bvh_alloc_aligned(n * sizeof *prims);
     bvh_node *scratch = bvh_alloc_aligned((2 * (size_t)n - 1) * sizeof(bvh_node));
     tree->tri_index = malloc(n * sizeof *tree->tri_index);
-    if (tri_box == NULL || centroid == NULL || scratch == NULL || tree->tri_index == NULL)
+    if (prims == NULL || scratch == NULL || tree->tri_index == NULL)
         goto nomem;
     bool parallel = B.fork_depth > 0 && n >= BVH_PARALLEL_PASS_TRIS;
-    tri_pass pass = {m, tri_box, centroid, tree, 0, n};
-    tri_pass_run(run, precompute_triangles, pass, parallel);
-    B.tri_box = tri_box;
-    B.centroid = centroid;
-    B.idx = tree->tri_index;
+    range_box root = prims_make(run, m, prims, parallel);
+    B.prims = prims;
+    B.tri_index = tree->tri_index;
     B.nodes = scratch;
     bvh_tally tally = {0};
-    tree->nnodes = build_subtree(&B, 0, 0, n, 0, &tally);
+    tree->nnodes = build_subtree(&B, 0, 0, n, 0, &root, &tally);
+    free(prims);
+    prims = NULL;
     if (accel_stop(run))
         goto fail; /* the tree was cut short */
     tree->nodes = bvh_shrink_aligned(scratch, tree->nnodes * sizeof(bvh_node));
     scratch = NULL;
     if (tree->nodes == NULL)
         goto nomem;
-    free(tri_box);
-    free(centroid);
     if (!bvh_wide_build(tree, m, run, parallel, e)) {
         bvh_tree_free(tree);
         return NULL;
@@ -640,8 +934,7 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, 
 nomem:
     arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory building over %u triangles", n);
 fail:
-    free(tri_box);
-    free(centroid);
+    free(prims);
     free(scratch);
     bvh_tree_free(tree);
     return NULL;
