@@ -5,8 +5,12 @@
  * and PROTOCOL.md's ray sets (primary, diffuse, shadow) traced and timed on
  * every tree, with Intel Embree beside them when asked; and OBJ parse speed.
  *
- * Every figure is the median of `runs` repetitions of one measurement. The
- * ray sets are made once per mesh: primary from the protocol camera, diffuse
+ * Every figure is the median of `runs` repetitions of one measurement. With
+ * opts.scale other than 1 the mesh is measured scaled by that power of two
+ * (arbor_bench_scale_mesh, on a copy of its vertices): every ray of the sets
+ * is then the unscaled one times the scale, bit for bit, so hits, triangles
+ * and distances (times the scale) must come out the same. The ray sets are
+ * made once per mesh: primary from the protocol camera, diffuse
  * and shadow from the primary hits of a reference trace with the first
  * requested tree; every tracer is then timed on those same rays by
  * arbor_time_set (raysets.h), so their primary hits must agree. Builds,
@@ -45,6 +49,7 @@ const char *arbor_ray_set_name(arbor_ray_set set);
  * Embree, and in Embree's own row. */
 typedef struct {
     char model[ARBOR_BENCH_MODEL_MAX];
+    double scale;                 /* opts.scale: the factor the mesh was measured at */
     uint32_t triangles;
     const char *accel, *builder;  /* "bvh"/"kd" and a builder name, or "embree" and "default" */
     int threads;
@@ -66,6 +71,7 @@ typedef struct {
     int threads;                         /* build and trace threads, the caller included; 0 = as many
                                           * as the pool has, or one per core without a pool */
     bool embree;                         /* add Embree's row and every row's ratio to it */
+    float scale;                         /* measure the mesh scaled by this power of two (see above) */
     arbor_pool *pool;                    /* builds, renders, traces on it; NULL: a pool of `threads`
                                           * for the call. Figures at N threads mean N threads only
                                           * on a pool nothing else is using meanwhile. */
@@ -79,8 +85,8 @@ typedef struct {
 bool arbor_bench_kind_index(const char *name, int *index);
 bool arbor_bench_builder_index(const char *name, int *index);
 
-/* Every kind and builder, 5 runs, one thread per core, no Embree, no pool,
- * no cancel flag, no callback. */
+/* Every kind and builder, 5 runs, one thread per core, no Embree, scale 1,
+ * no pool, no cancel flag, no callback. */
 void arbor_bench_opts_init(arbor_bench_opts *o);
 
 /* The rows arbor_bench_mesh fills: one per chosen kind and builder, plus
@@ -95,6 +101,12 @@ size_t arbor_bench_row_count(const arbor_bench_opts *o);
  * build, render or trace failed with; the rows reported done stay valid. */
 bool arbor_bench_mesh(const char *model_name, const arbor_mesh *m, const arbor_bench_opts *o,
                       arbor_bench_row *rows, arbor_err *e);
+
+/* Multiplies every vertex of m, and its bounds, by scale, a power of two,
+ * so exactly: no coordinate rounds. Fails with ARBOR_ERR_INVALID, leaving m
+ * unchanged, when scale is not a power of two or a non-zero coordinate
+ * would leave float's normal range (become subnormal, zero or infinite). */
+bool arbor_bench_scale_mesh(arbor_mesh *m, float scale, arbor_err *e);
 
 /* True when two rows traced the same primary hits (counts and distance sums
  * within 1e-3 relative): every tracer should, on the same rays. */

@@ -10,7 +10,7 @@
  *     "wide", arbor_layout), build_ms, nodes, leaves, empty_leaves,
  *     max_depth, mean_leaf_depth, mean_tris_per_leaf, refs, bytes, sah_cost:
  *     the shape of that one layout (build_ms is the whole tree's)
- *   bench row: model, triangles, accel, builder, threads, build_ms,
+ *   bench row: model, scale, triangles, accel, builder, threads, build_ms,
  *     mean_leaf_depth, mean_tris_per_leaf, sah_cost, render_ms,
  *     primary_mrays, diffuse_mrays, shadow_mrays, primary_hits,
  *     primary_tsum, and with ratios primary_ratio, diffuse_ratio,

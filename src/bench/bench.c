@@ -39,6 +39,7 @@ void arbor_bench_opts_init(arbor_bench_opts *o)
     for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
         o->builders[b] = true;
     o->runs = 5;
+    o->scale = 1.0f;
 }
 
 static size_t count_chosen(const bool *chosen, int n)
@@ -60,6 +61,34 @@ bool arbor_bench_same_hits(const arbor_bench_row *a, const arbor_bench_row *b)
     double ha = (double)a->primary_hits, hb = (double)b->primary_hits;
     return fabs(ha - hb) <= AGREE_REL * fmax(ha, hb) &&
            fabs(a->primary_tsum - b->primary_tsum) <= AGREE_REL * fmax(fabs(a->primary_tsum), fabs(b->primary_tsum));
+}
+
+/* ---- scaling ---- */
+
+static bool is_power_of_two(float f)
+{
+    int exp;
+    return isfinite(f) && f > 0.0f && frexpf(f, &exp) == 0.5f;
+}
+
+bool arbor_bench_scale_mesh(arbor_mesh *m, float scale, arbor_err *e)
+{
+    if (!is_power_of_two(scale))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "scale %.9g is not a power of two", (double)scale);
+    /* all checked before any is changed, so a refused scale leaves m whole */
+    for (uint32_t i = 0; i < m->nverts; i++) {
+        const float c[3] = {m->verts[i].x, m->verts[i].y, m->verts[i].z};
+        for (int k = 0; k < 3; k++)
+            if (c[k] != 0.0f && fpclassify(c[k] * scale) != FP_NORMAL)
+                return arbor_fail(e, ARBOR_ERR_INVALID,
+                                  "vertex %u: coordinate %.9g times scale %.9g leaves float's normal range", i + 1,
+                                  (double)c[k], (double)scale);
+    }
+    for (uint32_t i = 0; i < m->nverts; i++)
+        m->verts[i] = vec3_scale(m->verts[i], scale);
+    m->bounds.lo = vec3_scale(m->bounds.lo, scale);
+    m->bounds.hi = vec3_scale(m->bounds.hi, scale);
+    return true;
 }
 
 /* ---- the one timing helper ---- */
@@ -216,6 +245,7 @@ static void row_init(const bench_run *b, arbor_bench_row *row, const char *accel
 {
     memset(row, 0, sizeof *row);
     snprintf(row->model, sizeof row->model, "%s", b->model);
+    row->scale = b->o->scale;
     row->triangles = b->mesh->ntris;
     row->accel = accel;
     row->builder = builder;
@@ -314,6 +344,8 @@ static bool check_opts(const arbor_bench_opts *o, arbor_err *e)
 {
     if (o->runs < 1 || o->runs > ARBOR_BENCH_MAX_RUNS)
         return arbor_fail(e, ARBOR_ERR_INVALID, "runs must be in 1..%d, not %d", ARBOR_BENCH_MAX_RUNS, o->runs);
+    if (!is_power_of_two(o->scale))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "scale %.9g is not a power of two", (double)o->scale);
     if (o->threads < 0)
         return arbor_fail(e, ARBOR_ERR_INVALID, "threads must be 0 (one per core) or more, not %d", o->threads);
     if (count_chosen(o->kinds, ARBOR_ACCEL_KIND_COUNT) == 0 || count_chosen(o->builders, ARBOR_BUILDER_COUNT) == 0)
@@ -340,6 +372,23 @@ static bool bench_all(bench_run *b, arbor_err *e)
     return true;
 }
 
+/* *view: m with its own copy of the vertices, scaled; every other array is
+ * m's, so only view->verts is to be freed (never arbor_mesh_free). */
+static bool scaled_view(const arbor_mesh *m, float scale, arbor_mesh *view, arbor_err *e)
+{
+    *view = *m;
+    view->verts = malloc((m->nverts ? m->nverts : 1) * sizeof *view->verts);
+    if (view->verts == NULL)
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for %u scaled vertices", m->nverts);
+    if (m->nverts > 0)
+        memcpy(view->verts, m->verts, m->nverts * sizeof *view->verts);
+    if (!arbor_bench_scale_mesh(view, scale, e)) {
+        free(view->verts);
+        return false;
+    }
+    return true;
+}
+
 bool arbor_bench_mesh(const char *model_name, const arbor_mesh *m, const arbor_bench_opts *o,
                       arbor_bench_row *rows, arbor_err *e)
 {
@@ -353,13 +402,19 @@ bool arbor_bench_mesh(const char *model_name, const arbor_mesh *m, const arbor_b
     b.threads = o->threads > 0 ? o->threads : o->pool != NULL ? arbor_pool_threads(o->pool) : arbor_cpu_count();
     b.rows = rows;
     b.total = arbor_bench_row_count(o);
+    arbor_mesh scaled;
+    if (o->scale != 1.0f) {
+        if (!scaled_view(m, o->scale, &scaled, e))
+            return false;
+        b.mesh = &scaled;
+    }
     b.pool = o->pool != NULL ? o->pool : arbor_pool_create(b.threads, e);
-    if (b.pool == NULL)
-        return false;
-    bool ok = bench_all(&b, e);
+    bool ok = b.pool != NULL && bench_all(&b, e);
     arbor_raysets_free(&b.sets);
     if (o->pool == NULL)
         arbor_pool_destroy(b.pool);
+    if (b.mesh != m)
+        free(scaled.verts);
     return ok;
 }
 

@@ -75,6 +75,7 @@ cJSON *arbor_report_bench_row(const arbor_bench_row *r, bool with_ratios)
 {
     json_writer w = writer_new();
     put_string(&w, "model", r->model);
+    put_number(&w, "scale", r->scale);
     put_number(&w, "triangles", r->triangles);
     put_string(&w, "accel", r->accel);
     put_string(&w, "builder", r->builder);

@@ -41,6 +41,8 @@ static void usage(FILE *out)
             "  --runs N          repetitions, 1..%d; every figure is their median (default 5)\n"
             "  --format F        md, csv or json (one object per line) (default md)\n"
             "  --embree          add Intel Embree's row and each row's ratio to it\n"
+            "  --scale F         measure each model scaled by F, a power of two (1024, 1/1024,\n"
+            "                    0.0009765625): exact, so hits and distances (times F) stay the same\n"
             "  --parse           instead: time the OBJ parser on each model's text in memory\n",
             ARBOR_BENCH_MAX_RUNS);
 }
@@ -81,7 +83,7 @@ static bool bench_model(const arbor_bench_opts *o, const char *path, arbor_bench
     fprintf(stderr, "bench: %s: load\n", model);
     if (!arbor_load_model(path, &mesh, e))
         return false;
-    fprintf(stderr, "bench: %s: %u triangles\n", model, mesh.ntris);
+    fprintf(stderr, "bench: %s: %u triangles, scale %.17g\n", model, mesh.ntris, (double)o->scale);
     bool ok = arbor_bench_mesh(model, &mesh, o, rows, e);
     if (ok)
         check_hits(rows, arbor_bench_row_count(o));
@@ -112,6 +114,7 @@ static void put_number(bool csv, const char *fmt, double v)
 static void print_table_row(const arbor_bench_row *r, bool with_ratios, bool csv)
 {
     put_cell(csv, true, r->model);
+    put_number(csv, "%.17g", r->scale);
     put_number(csv, "%.0f", r->triangles);
     put_cell(csv, false, r->accel);
     put_cell(csv, false, r->builder);
@@ -226,6 +229,28 @@ static bool parse_list(const char *opt, const char *list, bool *chosen, int coun
 
 
 
+/* --scale: a number or a fraction (1024, 1/1024, 0.0009765625) that is a
+ * power of two in float, so that scaling by it is exact. */
+static bool parse_scale(const char *v, float *scale)
+{
+    char *end;
+    double num = strtod(v, &end), den = 1.0;
+    bool ok = end != v;
+    if (ok && *end == '/') {
+        const char *d = end + 1;
+        den = strtod(d, &end);
+        ok = end != d;
+    }
+    double f = num / den;
+    int exp;
+    ok = ok && *end == '\0' && f > 0.0 && (double)(float)f == f && isnormal((float)f) && frexp(f, &exp) == 0.5;
+    if (!ok)
+        fprintf(stderr, "arbord bench: --scale must be a power of two such as 1024, 1/1024 or 0.0009765625, not '%s'\n",
+                v);
+    *scale = (float)f;
+    return ok;
+}
+
 /* Returns -1 to go on, else the exit code. */
 static int parse_args(int argc, char **argv, bench_args *a)
 {
@@ -240,7 +265,8 @@ static int parse_args(int argc, char **argv, bench_args *a)
         } else if (strcmp(opt, "--parse") == 0) {
             a->parse = true;
         } else if (strcmp(opt, "--model") == 0 || strcmp(opt, "--accel") == 0 || strcmp(opt, "--builder") == 0 ||
-                   strcmp(opt, "--threads") == 0 || strcmp(opt, "--runs") == 0 || strcmp(opt, "--format") == 0) {
+                   strcmp(opt, "--threads") == 0 || strcmp(opt, "--runs") == 0 || strcmp(opt, "--format") == 0 ||
+                   strcmp(opt, "--scale") == 0) {
             if ((v = cli_value("bench", argc, argv, &i)) == NULL)
                 return 2;
             if (strcmp(opt, "--model") == 0) {
@@ -256,6 +282,8 @@ static int parse_args(int argc, char **argv, bench_args *a)
                 ok = cli_int("bench", opt, v, 0, 256, &a->opts.threads);
             } else if (strcmp(opt, "--runs") == 0) {
                 ok = cli_int("bench", opt, v, 1, ARBOR_BENCH_MAX_RUNS, &a->opts.runs);
+            } else if (strcmp(opt, "--scale") == 0) {
+                ok = parse_scale(v, &a->opts.scale);
             } else if (strcmp(v, "md") == 0 || strcmp(v, "csv") == 0 || strcmp(v, "json") == 0) {
                 a->format = v[0] == 'm' ? FORMAT_MD : v[0] == 'c' ? FORMAT_CSV : FORMAT_JSON;
             } else {

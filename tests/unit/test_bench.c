@@ -4,7 +4,9 @@
  * small Cornell box fills the rows it promised and reports each as it
  * finishes; every tree traced the primary hits brute force finds on the same
  * rays; a cancel flag, set before or during the run, stops it with
- * ARBOR_ERR_CANCELLED; bad options are refused; the JSON keys are the ones
+ * ARBOR_ERR_CANCELLED; a mesh measured scaled by a power of two traces the
+ * same hits at distances summing to the unscaled sum times the scale; bad
+ * options are refused; the JSON keys are the ones
  * scripts/bench_tables.py reads, NAN written as null; parse timing counts
  * the file's bytes and triangles.
  */
@@ -125,6 +127,37 @@ static void test_every_tree_gets_its_row_and_the_same_hits_as_brute_force(void)
     }
 }
 
+/* At scale 1024 and 1/1024 every tree traces the same primary hits, at
+ * distances summing to the unscaled sum times the scale exactly (each
+ * distance is scaled exactly, and so is their sum); the caller's mesh is
+ * left as it was. */
+static void test_a_scaled_mesh_gives_the_same_hits_at_scaled_distances(void)
+{
+    const float scales[] = {1.0f, 1024.0f, 1.0f / 1024.0f};
+    arbor_bench_row rows[3][ARBOR_ACCEL_KIND_COUNT];
+    const arbor_vec3 first = mesh.verts[1];
+    for (int i = 0; i < 3; i++) {
+        progress_log log;
+        memset(&log, 0, sizeof log);
+        arbor_bench_opts o;
+        one_run_opts(&o, &log);
+        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
+            o.builders[b] = b == ARBOR_BUILD_SAH;
+        o.scale = scales[i];
+        arbor_err e;
+        TEST_ASSERT_TRUE_MESSAGE(arbor_bench_mesh("cornell4", &mesh, &o, rows[i], &e), e.msg);
+        TEST_ASSERT_TRUE(mesh.verts[1].x == first.x && mesh.verts[1].y == first.y && mesh.verts[1].z == first.z);
+    }
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
+            const arbor_bench_row *r = &rows[i][k];
+            TEST_ASSERT_EQUAL_DOUBLE(scales[i], r->scale);
+            TEST_ASSERT_TRUE(r->primary_hits > 0);
+            TEST_ASSERT_EQUAL_UINT64(rows[0][0].primary_hits, r->primary_hits);
+            TEST_ASSERT_TRUE_MESSAGE(r->primary_tsum == rows[0][0].primary_tsum * scales[i], r->accel);
+        }
+}
+
 static void test_a_cancel_flag_set_before_stops_before_any_row(void)
 {
     progress_log log;
@@ -179,6 +212,15 @@ static void test_bad_options_are_refused(void)
     TEST_ASSERT_FALSE(arbor_bench_mesh("m", &mesh, &o, rows, &e));
     TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
 
+    const float bad_scales[] = {0.0f, 3.0f, -2.0f, NAN};
+    for (size_t i = 0; i < sizeof bad_scales / sizeof bad_scales[0]; i++) {
+        arbor_bench_opts_init(&o);
+        o.scale = bad_scales[i];
+        TEST_ASSERT_FALSE(arbor_bench_mesh("m", &mesh, &o, rows, &e));
+        TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
+        TEST_ASSERT_NOT_NULL(strstr(e.msg, "power of two"));
+    }
+
     arbor_bench_opts_init(&o);
     o.embree = true;
     o.kinds[ARBOR_ACCEL_KD] = false;
@@ -212,7 +254,7 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
         row.ratio[s] = NAN;
     }
     char keys[512];
-    const char *row_keys = "model,triangles,accel,builder,threads,build_ms,mean_leaf_depth,mean_tris_per_leaf,"
+    const char *row_keys = "model,scale,triangles,accel,builder,threads,build_ms,mean_leaf_depth,mean_tris_per_leaf,"
                            "sah_cost,render_ms,primary_mrays,diffuse_mrays,shadow_mrays,primary_hits,primary_tsum";
     cJSON *o = arbor_report_bench_row(&row, true);
     TEST_ASSERT_NOT_NULL(o);
@@ -303,6 +345,7 @@ int main(void)
 {
     UNITY_BEGIN();
     RUN_TEST(test_every_tree_gets_its_row_and_the_same_hits_as_brute_force);
+    RUN_TEST(test_a_scaled_mesh_gives_the_same_hits_at_scaled_distances);
     RUN_TEST(test_a_cancel_flag_set_before_stops_before_any_row);
     RUN_TEST(test_a_cancel_flag_set_during_the_run_stops_it_between_measurements);
     RUN_TEST(test_bad_options_are_refused);
