@@ -382,15 +382,20 @@ static void bins_merge(sah_bins *to, const sah_bins *from, uint32_t nbins)
         }
 }
 
+static inline void bin_grow(sah_bins *s, int axis, uint32_t j, __m128 lo, __m128 hi)
+{
+    box_grow(&s->box[axis][j], lo, hi);
+    s->count[axis][j]++;
+}
+
 static inline void bin_prim(sah_bins *s, const bin_grid *g, const bvh_prim *p)
 {
     __m128 lo = prim_lo(p), hi = prim_hi(p);
-    uint32_t j[4];
-    _mm_storeu_si128((__m128i *)j, bin_of(g, centroid2(lo, hi)));
-    for (int k = 0; k < 3; k++) {
-        box_grow(&s->box[k][j[k]], lo, hi);
-        s->count[k][j[k]]++;
-    }
+    __m128i j = bin_of(g, centroid2(lo, hi));
+    /* the three axes written out, their bins taken from the register */
+    bin_grow(s, 0, (uint32_t)_mm_cvtsi128_si32(j), lo, hi);
+    bin_grow(s, 1, (uint32_t)_mm_cvtsi128_si32(_mm_shuffle_epi32(j, _MM_SHUFFLE(1, 1, 1, 1))), lo, hi);
+    bin_grow(s, 2, (uint32_t)_mm_cvtsi128_si32(_mm_shuffle_epi32(j, _MM_SHUFFLE(2, 2, 2, 2))), lo, hi);
 }
 
 /* Bins prims[b, e) into s, cleared: the build's hottest loop. The three
