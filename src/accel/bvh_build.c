@@ -26,7 +26,9 @@
  *            bins per axis (fewer for small nodes, but at least 16), the
  *            cost of each plane between bins is evaluated from prefix and
  *            suffix sums of the bins, and the cheapest plane wins (nodes of
- *            two triangles are decided directly); the node stays a leaf
+ *            two triangles are decided directly, and nodes of at most
+ *            BVH_SAH_EXACT_TRIS try every plane between their centroids
+ *            in sorted order, the exact object SAH); the node stays a leaf
  *            when splitting costs more than intersecting its triangles (and
  *            it is small enough). The partition then sends each triangle to
  *            the side of its bin, computed as the binning computed it, so the
@@ -519,11 +521,13 @@ static bool sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t dep
     bins_build(B, b, e, depth, &g, &bins);
     float best = INFINITY;
     split_rule rule = {0, true, &g, _mm_setzero_si128(), _mm_setzero_ps()};
+    uint32_t best_plane = 0;
     for (int k = 0; k < 3; k++) {
         uint32_t plane = 0;
         float cost = scale[k] > 0.0f ? sah_sweep(bins.box[k], bins.count[k], g.nbins, &plane) : INFINITY;
         if (cost < best) {
             best = cost;
+            best_plane = plane;
             rule.axis = k;
             rule.limit_bin = _mm_set1_epi32((int)plane + 1);
         }
@@ -532,7 +536,17 @@ static bool sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t dep
     double leaf_cost = (double)B->cost_intersect * area * (double)n;
     if (!(split_cost < leaf_cost) && n <= B->max_leaf)
         return false;
-    *m = best < INFINITY ? partition(B, b, e, &rule, kids) : b;
+    if (best == INFINITY) {
+        *m = b;
+        return true;
+    }
+    *m = partition(B, b, e, &rule, kids);
+    /* the split made is the one costed: as many go left as the bins counted */
+    uint32_t costed_left = 0;
+    for (uint32_t j = 0; j <= best_plane; j++)
+        costed_left += bins.count[rule.axis][j];
+    assert(*m - b == costed_left);
+    (void)costed_left;
     return true;
 }
 
