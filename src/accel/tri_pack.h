@@ -1,0 +1,107 @@
+/*
+ * tri_pack.h - the watertight ray-triangle test (arbor_triangle_intersect,
+ * include/arbor/ray.h) on a pack of SIMD_LANES triangles at once, for the
+ * leaves of every tree. Each lane goes through the same operations in the
+ * same order as the scalar test, with no fused multiply-add (the kernels
+ * are compiled with -ffp-contract=off), so each triangle gives exactly the
+ * t, u, v brute force computes for it; an edge function that comes out
+ * zero in single precision is decided in double by the scalar test's own
+ * arbor_edge_functions_exact, as there.
+ *
+ * A pack's layout is a float array v[3][3][SIMD_LANES]: vertex a, b, c;
+ * axis x, y, z; lane = triangle, 4 * SIMD_LANES-byte aligned. Lanes a pack
+ * does not use hold NaN vertices, which make every comparison false, so
+ * they never hit. Include after defining SIMD_LANES (simd.h).
+ */
+#ifndef ARBOR_TRI_PACK_H
+#define ARBOR_TRI_PACK_H
+
+#include "arbor/ray.h"
+#include "simd.h"
+
+/* Per-ray constants of the test: the axis permutation k (kz the dominant
+ * axis of the direction), the origin in that order, the shear constants.
+ * Worth setting up lazily, at the first leaf a ray reaches. */
+typedef struct {
+    int k[3];
+    float org[3], shear[3], tmin;
+} tri_ray;
+
+SIMD_INLINE void tri_ray_setup(tri_ray *q, const arbor_ray *r)
+{
+    const float o[3] = {r->o.x, r->o.y, r->o.z};
+    arbor_ray_prep p;
+    arbor_ray_prepare(r, &p);
+    q->k[0] = p.kx;
+    q->k[1] = p.ky;
+    q->k[2] = p.kz;
+    for (int a = 0; a < 3; a++)
+        q->org[a] = o[q->k[a]];
+    q->shear[0] = p.sx;
+    q->shear[1] = p.sy;
+    q->shear[2] = p.sz;
+    q->tmin = r->tmin;
+}
+
+/* What a pack test found: per lane, hit (all ones) or not, t, and V, W and
+ * 1 / det, from which u = V / det and v = W / det as the scalar test gives
+ * them. */
+typedef struct {
+    vfloat hit, t, v, w, inv;
+} tri_pack_hits;
+
+/* Row `axis` of vertex `vert` in the pack at v. */
+SIMD_INLINE vfloat tri_pack_row(const float *v, int vert, int axis)
+{
+    return vload(v + (3 * vert + axis) * SIMD_LANES);
+}
+
+/* Tests the pack at v against the ray in (tmin, tmax); returns the mask of
+ * lanes hit (bit l for lane l) and fills *out. */
+SIMD_INLINE int tri_pack_test(const float *v, const tri_ray *q, vfloat tmax, tri_pack_hits *out)
+{
+    const int kx = q->k[0], ky = q->k[1], kz = q->k[2];
+    const vfloat ox = vset1(q->org[0]), oy = vset1(q->org[1]), oz = vset1(q->org[2]);
+    const vfloat sx = vset1(q->shear[0]), sy = vset1(q->shear[1]), sz = vset1(q->shear[2]);
+    vfloat az = tri_pack_row(v, 0, kz) - oz;
+    vfloat bz = tri_pack_row(v, 1, kz) - oz;
+    vfloat cz = tri_pack_row(v, 2, kz) - oz;
+    vfloat ax = (tri_pack_row(v, 0, kx) - ox) - sx * az;
+    vfloat ay = (tri_pack_row(v, 0, ky) - oy) - sy * az;
+    vfloat bx = (tri_pack_row(v, 1, kx) - ox) - sx * bz;
+    vfloat by = (tri_pack_row(v, 1, ky) - oy) - sy * bz;
+    vfloat cx = (tri_pack_row(v, 2, kx) - ox) - sx * cz;
+    vfloat cy = (tri_pack_row(v, 2, ky) - oy) - sy * cz;
+    vfloat u = cx * by - cy * bx;
+    vfloat vv = ax * cy - ay * cx;
+    vfloat w = bx * ay - by * ax;
+    const vfloat zero = vset1(0.0f);
+    int on_edge = vmask(vor(vor(veq(u, zero), veq(vv, zero)), veq(w, zero)));
+    if (__builtin_expect(on_edge != 0, 0)) {
+        for (int l = 0; l < SIMD_LANES; l++)
+            if (on_edge & (1 << l)) {
+                float U, V, W;
+                arbor_edge_functions_exact(ax[l], ay[l], bx[l], by[l], cx[l], cy[l], &U, &V, &W);
+                u[l] = U;
+                vv[l] = V;
+                w[l] = W;
+            }
+    }
+    vfloat some_neg = vor(vor(vlt(u, zero), vlt(vv, zero)), vlt(w, zero));
+    vfloat some_pos = vor(vor(vgt(u, zero), vgt(vv, zero)), vgt(w, zero));
+    vfloat det = (u + vv) + w;
+    vfloat T = ((u * sz) * az + (vv * sz) * bz) + (w * sz) * cz;
+    vfloat inv = vset1(1.0f) / det;
+    vfloat t = T * inv;
+    /* det == 0 needs no test of its own: then inv is infinite and t is NaN
+     * or infinite, outside (tmin, tmax) */
+    vfloat hit = vandnot(vand(some_neg, some_pos), vand(vgt(t, vset1(q->tmin)), vlt(t, tmax)));
+    out->hit = hit;
+    out->t = t;
+    out->v = vv;
+    out->w = w;
+    out->inv = inv;
+    return vmask(hit);
+}
+
+#endif
