@@ -16,10 +16,10 @@
  * of the ray, so keeping it can only be right, while rejecting it would
  * lose hits whose t and the cell's t round differently (a triangle lying in
  * a split plane, for instance). Pending children that start beyond the best
- * hit (with a margin of 2^-20 relative for that rounding) are skipped, and
- * the search ends when none is left: the first hit along the ray lies in a
- * leaf the ray reaches before any such child, and that leaf lists the
- * triangle. They are skipped one by one, not all at once, because a ray
+ * hit, or before any hit beyond tmax (with a margin of 2^-20 relative for
+ * that rounding in both cases), are skipped, and the search ends when none
+ * is left: the first hit along the ray lies in a leaf the ray reaches
+ * before any such child, and that leaf lists the triangle. They are skipped one by one, not all at once, because a ray
  * lying in a plane pushes a child with the whole interval, so the stack is
  * not always ordered by tnear.
  * A ray through a point where split planes meet (perfect splits put planes
@@ -124,8 +124,11 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
     int ntodo = 0;
     uint32_t at = 0;
     /* limit: the triangle tests' bound, just above best once there is a hit
-     * so that a tie can reach the index comparison; stop: best + margin */
-    float best = r->tmax, limit = r->tmax, stop = r->tmax, best_u = 0.0f, best_v = 0.0f;
+     * so that a tie can reach the index comparison; stop: best + margin, and
+     * tmax + margin before any hit, so that a cell whose entry rounds just
+     * past tmax still gets its hits below tmax tested */
+    float best = r->tmax, limit = r->tmax, stop = r->tmax + fabsf(r->tmax) * KD_SPLIT_MARGIN;
+    float best_u = 0.0f, best_v = 0.0f;
     uint32_t best_tri = UINT32_MAX;
     for (;;) {
         const kd_node *n = &nodes[at];
