@@ -140,7 +140,7 @@ void kd_fill_stats(const kd_tree *tree, const kd_sums *s, arbor_tree_stats *stat
     stats->mean_leaf_depth = s->leaves ? (double)s->depth_sum / (double)s->leaves : 0.0;
     stats->mean_tris_per_leaf = nonempty ? (double)s->refs / (double)nonempty : 0.0;
     stats->refs = s->refs;
-    stats->bytes = tree->nnodes * sizeof *tree->nodes + tree->nindex * sizeof *tree->tri_index;
+    stats->bytes = kd_tree_bytes(tree);
     /* with no area at the root (all triangles on one line or point) every
      * cell counts as the root's, ratio 1, as the bvh does */
     stats->sah_cost = root_area > 0.0 ? (s->inner_area + s->leaf_area_tris) / root_area

@@ -251,6 +251,11 @@ void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, a
         free(out.index);
     tree->tri_index = out.nindex ? (index ? index : out.index) : NULL;
     tree->nindex = out.nindex;
+    if (!kd_pack_leaves(tree)) {
+        kd_destroy(tree);
+        arbor_fail(e, ARBOR_ERR_NOMEM, "kd tree over %u triangles: out of memory for its leaf packs", m->ntris);
+        return NULL;
+    }
     kd_fill_stats(tree, &out.sums, stats);
     return tree;
 }
@@ -262,5 +267,6 @@ void kd_destroy(void *impl)
         return;
     free(tree->nodes);
     free(tree->tri_index);
+    free(tree->packs);
     free(tree);
 }

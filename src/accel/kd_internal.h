@@ -11,6 +11,7 @@
  *   kd_simple.c    the planes of the spatial, median and mean builders
  *   kd_sah.c       the SAH plane of Wald and Havran (2006) by event sweep
  *   kd_buffer.c    the node buffer the recursion writes, and its statistics
+ *   kd_pack.c      the leaves' triangles in packs for the SIMD test
  *   kd_traverse.c  closest-hit and any-hit ray queries
  *   kd_validate.c  the invariant checker behind arbor_accel_validate
  *
@@ -18,7 +19,10 @@
  * KdAccelNode: an inner node's below child (coordinates < split) is the next
  * node and its above child is at the index stored in the node. A leaf with
  * one triangle stores that triangle's index; a leaf with more stores the
- * offset of its list in tri_index[]. Triangle indices are always the mesh's.
+ * offset of its list in tri_index[], a multiple of KD_PACK_LANES, and its
+ * triangles' corners are in packs[offset / KD_PACK_LANES] on, in the list's
+ * order, for the SIMD test (kd_pack.c). Triangle indices are always the
+ * mesh's.
  * A leaf's cell is not stored: it follows from the root box and the planes.
  *
  * Invariants (kd_validate.c checks them):
@@ -76,11 +80,23 @@ static inline const uint32_t *kd_leaf_tris(const kd_node *n, const uint32_t *tri
     return count == 1 ? &n->tri : count == 0 ? NULL : tri_index + n->first;
 }
 
+/* Triangles a leaf's pack holds: 4, one SSE register a row, whatever the
+ * kernel: leaves hold 2 to 3 triangles on average, so wider packs would
+ * mostly test empty lanes. */
+#define KD_PACK_LANES 4
+
+/* The corners of KD_PACK_LANES triangles as tri_pack.h reads them:
+ * v[corner][axis][lane]. */
+typedef struct {
+    _Alignas(4 * KD_PACK_LANES) float v[3][3][KD_PACK_LANES];
+} kd_pack;
+
 typedef struct {
     const arbor_mesh *mesh;
     kd_node *nodes;
     uint32_t *tri_index;
-    size_t nnodes, nindex;
+    kd_pack *packs;
+    size_t nnodes, nindex, npacks;
     arbor_aabb bounds;   /* the root's cell: the box of all triangles */
     uint32_t max_depth;  /* the limit the build obeyed */
 } kd_tree;
@@ -298,6 +314,16 @@ void kd_set_above(kd_buffer *out, size_t inner);
 
 /* Appends the subtree in `from` (built with indices from 0) to `out`. */
 void kd_buffer_append(kd_buffer *out, const kd_buffer *from);
+
+/* Lays the finished tree's leaves out in packs (kd_pack.c); false when
+ * memory runs out (the tree is then unchanged). */
+bool kd_pack_leaves(kd_tree *tree);
+
+/* The bytes a tree holds: nodes, triangle lists and packs. */
+static inline uint64_t kd_tree_bytes(const kd_tree *t)
+{
+    return t->nnodes * sizeof *t->nodes + t->nindex * sizeof *t->tri_index + t->npacks * sizeof *t->packs;
+}
 
 /* Fills stats from the finished tree and its buffer's sums. */
 void kd_fill_stats(const kd_tree *tree, const kd_sums *s, arbor_tree_stats *stats);

@@ -31,6 +31,11 @@
  * Among hits at exactly the same t the lowest triangle index wins, as in
  * brute force, whatever order the leaves list them in.
  *
+ * Leaves. A leaf of one triangle runs the scalar watertight test; a leaf
+ * of more tests its packs (kd_pack.c), KD_PACK_LANES triangles at once, by
+ * tri_pack.h, whose lanes compute exactly what the scalar test computes, so
+ * t, u and v are brute force's. Counted rays count triangles, not lanes.
+ *
  * Planes parallel to the ray: a zero direction component is made +0, so its
  * reciprocal is +inf and tsplit is +inf or -inf (one child, the one the
  * origin is in) or NaN when the origin lies in the plane: then both
@@ -39,6 +44,9 @@
  * moves into (and the other with an empty interval when tnear is 0).
  */
 #include "kd_internal.h"
+
+#define SIMD_LANES KD_PACK_LANES
+#include "tri_pack.h"
 
 /* Relative margin for the rounding of cell intervals and hit distances. */
 #define KD_SPLIT_MARGIN 0x1p-20f
@@ -99,6 +107,21 @@ static void kd_visit(arbor_node_fn visit, void *user, const kd_place *p, bool le
     visit(user, &info);
 }
 
+/* A hit at t below the limit (so t <= *best): it becomes the best unless it
+ * ties the best at a higher triangle index. */
+static inline void kd_keep_hit(uint32_t tri, float t, float u, float v, float *best, float *best_u, float *best_v,
+                               uint32_t *best_tri, float *limit, float *stop)
+{
+    if (t < *best || tri < *best_tri) {
+        *best = t;
+        *best_u = u;
+        *best_v = v;
+        *best_tri = tri;
+        *limit = nextafterf(t, INFINITY);
+        *stop = t + fabsf(t) * KD_SPLIT_MARGIN;
+    }
+}
+
 /* The one traversal. count == NULL, visit == NULL and any_hit are
  * compile-time constants at every call, so each query gets its own copy
  * without the code it does not use. */
@@ -117,6 +140,8 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
         return false;
     arbor_ray_prep prep;
     arbor_ray_prepare(r, &prep);
+    tri_ray tq = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}, 0.0f};  /* set up at the first leaf of several triangles */
+    bool tq_ready = false;
     const kd_node *nodes = tree->nodes;
     const arbor_mesh *mesh = tree->mesh;
     kd_todo todo[KD_MAX_DEPTH];
@@ -173,25 +198,40 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
             continue;
         }
         uint32_t ntris = kd_node_high(*n);
-        const uint32_t *tris = kd_leaf_tris(n, tree->tri_index);
-        for (uint32_t i = 0; i < ntris; i++) {
-            uint32_t tri = tris[i];
+        if (count)
+            count->tris += ntris;
+        if (ntris == 1) {
             arbor_vec3 a, b, c;
             float t, u, v;
-            arbor_mesh_tri(mesh, tri, &a, &b, &c);
-            if (count)
-                count->tris++;
-            if (!arbor_triangle_intersect(r, &prep, a, b, c, limit, &t, &u, &v))
-                continue;
-            if (any_hit)
-                return true;
-            if (t < best || tri < best_tri) {
-                best = t;
-                best_u = u;
-                best_v = v;
-                best_tri = tri;
-                limit = nextafterf(t, INFINITY);
-                stop = t + fabsf(t) * KD_SPLIT_MARGIN;
+            arbor_mesh_tri(mesh, n->tri, &a, &b, &c);
+            if (arbor_triangle_intersect(r, &prep, a, b, c, limit, &t, &u, &v)) {
+                if (any_hit)
+                    return true;
+                kd_keep_hit(n->tri, t, u, v, &best, &best_u, &best_v, &best_tri, &limit, &stop);
+            }
+        } else if (ntris > 1) {
+            /* packs of KD_PACK_LANES; a hit at t < limit has t <= best, and
+             * the lanes are taken in list order against the limit each
+             * one leaves, so the nearest wins, the lowest index on a tie */
+            const uint32_t *tris = tree->tri_index + n->first;
+            const kd_pack *pack = tree->packs + n->first / KD_PACK_LANES;
+            if (!tq_ready) {
+                tri_ray_setup(&tq, r);
+                tq_ready = true;
+            }
+            for (uint32_t i = 0; i < ntris; i += KD_PACK_LANES, pack++) {
+                tri_pack_hits ph;
+                int hits = tri_pack_test(&pack->v[0][0][0], &tq, vset1(limit), &ph);
+                if (hits == 0)
+                    continue;
+                if (any_hit)
+                    return true;
+                for (; hits != 0; hits &= hits - 1) {
+                    int l = __builtin_ctz((unsigned)hits);
+                    if (ph.t[l] < limit)
+                        kd_keep_hit(tris[i + (uint32_t)l], ph.t[l], ph.v[l] * ph.inv[l], ph.w[l] * ph.inv[l], &best,
+                                    &best_u, &best_v, &best_tri, &limit, &stop);
+                }
             }
         }
         /* next: the nearest pending child that can still hold a closer hit */

@@ -9,9 +9,11 @@
  *  1. The walk: from the root, every node is reached exactly once; inner
  *     nodes have an axis, a split within their cell (on a face only when
  *     the cell has extent along the axis: the SAH's flat children) and
- *     children in range; leaves are no deeper than max_depth and list valid triangles,
- *     each of which touches the leaf's cell grown by a tolerance. The walk
- *     also recounts every statistic, which must equal the stored ones.
+ *     children in range; leaves are no deeper than max_depth and list
+ *     valid triangles, each of which touches the leaf's cell grown by a
+ *     tolerance, and their packs hold exactly those triangles' corners.
+ *     The walk also recounts every statistic, which must equal the stored
+ *     ones.
  *  2. Coverage: each triangle is listed somewhere, and in every leaf whose
  *     cell, shrunk by the tolerance at faces that are split planes, it
  *     overlaps (found by descending the tree with the triangle's box).
@@ -144,6 +146,31 @@ static kd_dbox kd_shrunk(const kd_check *c, const kd_dbox *cell, unsigned split_
     return s;
 }
 
+/* Whether the packs of leaf `at` (count > 1 triangles, in range) hold
+ * exactly its list's corners, and NaN in the lanes past its count. */
+static bool kd_check_packs(kd_check *c, uint32_t at, const kd_node *n, uint32_t count)
+{
+    const kd_tree *t = c->tree;
+    if (n->first % KD_PACK_LANES != 0 || n->first / KD_PACK_LANES + (count - 1) / KD_PACK_LANES >= t->npacks)
+        return arbor_fail(c->e, ARBOR_ERR_INVALID, "kd leaf %u: list at %u not on a pack of the %zu", at, n->first,
+                          t->npacks);
+    const kd_pack *p = t->packs + n->first / KD_PACK_LANES;
+    uint32_t lanes = (count + KD_PACK_LANES - 1) / KD_PACK_LANES * KD_PACK_LANES;
+    for (uint32_t i = 0; i < lanes; i++) {
+        arbor_vec3 v[3];
+        if (i < count)
+            arbor_mesh_tri(c->mesh, t->tri_index[n->first + i], &v[0], &v[1], &v[2]);
+        for (int a = 0; a < 3; a++)
+            for (int k = 0; k < 3; k++) {
+                float got = p[i / KD_PACK_LANES].v[a][k][i % KD_PACK_LANES];
+                if (i < count ? got != vec3_axis(v[a], k) : !isnan(got))
+                    return arbor_fail(c->e, ARBOR_ERR_INVALID, "kd leaf %u: pack lane %u corner %d axis %d is %g",
+                                      at, i, a, k, (double)got);
+            }
+    }
+    return true;
+}
+
 static bool kd_check_leaf(kd_check *c, uint32_t at, const kd_dbox *cell, uint32_t depth)
 {
     const kd_tree *t = c->tree;
@@ -164,6 +191,8 @@ static bool kd_check_leaf(kd_check *c, uint32_t at, const kd_dbox *cell, uint32_
                               cell->hi[2]);
         c->listed[tris[i]]++;
     }
+    if (count > 1 && !kd_check_packs(c, at, n, count))
+        return false;
     c->leaves++;
     c->empty_leaves += count == 0;
     c->refs += count;
@@ -253,7 +282,7 @@ static bool kd_check_stats(const kd_check *c, const arbor_tree_stats *s)
     double mean_tris = nonempty ? (double)c->refs / (double)nonempty : 0.0;
     double sah = root_area > 0.0 ? (c->inner_area + c->leaf_area_tris) / root_area
                                  : (double)(t->nnodes - c->leaves) + (double)c->refs;
-    uint64_t bytes = t->nnodes * sizeof *t->nodes + t->nindex * sizeof *t->tri_index;
+    uint64_t bytes = kd_tree_bytes(t);
     if (s->nodes != t->nnodes || s->leaves != c->leaves || s->empty_leaves != c->empty_leaves ||
         s->refs != c->refs || s->max_depth != c->max_depth || s->bytes != bytes)
         return arbor_fail(c->e, ARBOR_ERR_INVALID,
