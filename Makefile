@@ -58,7 +58,20 @@ endif
 LIB_SRC  = $(wildcard src/core/*.c src/geom/*.c src/accel/*.c src/render/*.c src/bench/*.c src/store/*.c src/server/*.c)
 CLI_SRC  = $(wildcard src/cli/*.c)
 TEST_SRC = $(wildcard tests/unit/test_*.c)
-LIB_OBJ  = $(LIB_SRC:%.c=$(BUILD)/obj/%.o)
+# Traversal kernels (src/accel/accel_impl.h): every source of KERNEL_SRC is
+# compiled once per kernel of KERNELS, with -DACCEL_KERNEL=<kernel> and the
+# kernel's instruction set, into <source>.<kernel>.o; accel.c picks one at
+# run time, so even a portable build (MARCH=) traces with AVX2 where the CPU
+# has it. The sse2 kernel turns AVX off even under -march=native, so that it
+# is what a CPU without AVX runs (and the tests can compare the two).
+# -Wno-psabi: without AVX GCC notes that 8-lane vectors would be passed
+# differently across calls; the kernels' vector helpers are all inlined.
+KERNEL_SRC = src/accel/bvh_traverse.c
+KERNELS    = sse2 avx2
+KERNEL_CFLAGS_sse2 = -mno-avx -Wno-psabi
+KERNEL_CFLAGS_avx2 = -mavx2 -mfma
+LIB_SRC := $(filter-out $(KERNEL_SRC),$(LIB_SRC))
+LIB_OBJ  = $(LIB_SRC:%.c=$(BUILD)/obj/%.o) $(foreach k,$(KERNELS),$(KERNEL_SRC:%.c=$(BUILD)/obj/%.$(k).o))
 CLI_OBJ  = $(CLI_SRC:%.c=$(BUILD)/obj/%.o)
 TEST_BIN = $(TEST_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 UNITY    = build/deps/unity/src
@@ -80,6 +93,13 @@ deps:
 $(BUILD)/obj/%.o: %.c | deps
 	@mkdir -p $(dir $@)
 	$(CC) $(ARBOR_CFLAGS) -c $< -o $@
+
+define KERNEL_RULE
+$(BUILD)/obj/%.$(1).o: %.c | deps
+	@mkdir -p $$(dir $$@)
+	$$(CC) $$(ARBOR_CFLAGS) $$(KERNEL_CFLAGS_$(1)) -DACCEL_KERNEL=$(1) -c $$< -o $$@
+endef
+$(foreach k,$(KERNELS),$(eval $(call KERNEL_RULE,$(k))))
 
 $(BUILD)/libarbor.a: $(LIB_OBJ)
 	@rm -f $@

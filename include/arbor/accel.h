@@ -120,6 +120,12 @@ const char *arbor_builder_name(arbor_builder builder);
 bool arbor_accel_kind_parse(const char *name, arbor_accel_kind *kind);
 bool arbor_builder_parse(const char *name, arbor_builder *builder);
 
+/* The traversal kernel trees built now trace with: "avx2" where the CPU has
+ * AVX2 and FMA, "sse2" otherwise, whatever the build's -march; the
+ * environment variable ARBOR_KERNEL=sse2 makes it "sse2" everywhere. Every
+ * kernel returns the same hits. A tree keeps the kernel it was built with. */
+const char *arbor_accel_kernel_name(void);
+
 /* Builds a tree over m. NULL on failure (invalid options, no memory,
  * ARBOR_ERR_CANCELLED when cancelled). opts.pool and opts.cancel are used
  * only while the build runs. */

@@ -10,6 +10,7 @@
 
 struct arbor_accel {
     const arbor_accel_ops *ops;
+    const accel_queries *queries; /* ops' queries in the kernel picked at build */
     void *impl;
     const arbor_mesh *mesh;
     arbor_build_opts opts;
@@ -19,6 +20,26 @@ struct arbor_accel {
 static const char *const kind_names[ARBOR_ACCEL_KIND_COUNT] = {"bvh", "kd"};
 static const char *const builder_names[ARBOR_BUILDER_COUNT] = {"spatial", "median", "mean", "sah"};
 static const char *const layout_names[ARBOR_LAYOUT_COUNT] = {"binary", "wide"};
+static const char *const kernel_names[ACCEL_KERNEL_COUNT] = {"sse2", "avx2"};
+
+/* The traversal kernel of the trees built now: AVX2 where the CPU has both
+ * AVX2 and FMA, SSE2 (every x86-64 has it) otherwise, or SSE2 when the
+ * environment says ARBOR_KERNEL=sse2 (other values are ignored: AVX2 cannot
+ * be forced onto a CPU without it). Read at every build, so that a test can
+ * build one tree per kernel; getenv is cheap next to any build. */
+static accel_kernel kernel_pick(void)
+{
+    const char *want = getenv("ARBOR_KERNEL");
+    if (want != NULL && strcmp(want, "sse2") == 0)
+        return ACCEL_KERNEL_SSE2;
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma") ? ACCEL_KERNEL_AVX2 : ACCEL_KERNEL_SSE2;
+}
+
+const char *arbor_accel_kernel_name(void)
+{
+    return kernel_names[kernel_pick()];
+}
 
 void arbor_build_opts_init(arbor_build_opts *o, arbor_accel_kind kind, arbor_builder builder)
 {
@@ -128,6 +149,7 @@ arbor_accel *arbor_accel_build(const arbor_mesh *m, const arbor_build_opts *o, a
         return NULL;
     }
     a->ops = o->kind == ARBOR_ACCEL_BVH ? &arbor_bvh_ops : &arbor_kd_ops;
+    a->queries = a->ops->queries[kernel_pick()];
     a->mesh = m;
     a->opts = *o;
     accel_run run;
@@ -145,18 +167,18 @@ arbor_accel *arbor_accel_build(const arbor_mesh *m, const arbor_build_opts *o, a
 
 bool arbor_accel_intersect(const arbor_accel *a, arbor_ray *r, arbor_hit *h)
 {
-    return a->ops->intersect(a->impl, r, h);
+    return a->queries->intersect(a->impl, r, h);
 }
 
 bool arbor_accel_intersect_counted(const arbor_accel *a, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
 {
-    return a->ops->intersect_counted(a->impl, r, h, c);
+    return a->queries->intersect_counted(a->impl, r, h, c);
 }
 
 bool arbor_accel_intersect_traced(const arbor_accel *a, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c,
                                   arbor_node_fn visit, void *user)
 {
-    return a->ops->intersect_traced(a->impl, r, h, c, visit, user);
+    return a->queries->intersect_traced(a->impl, r, h, c, visit, user);
 }
 
 void arbor_accel_walk(const arbor_accel *a, uint32_t max_depth, arbor_node_fn fn, void *user)
@@ -166,7 +188,7 @@ void arbor_accel_walk(const arbor_accel *a, uint32_t max_depth, arbor_node_fn fn
 
 bool arbor_accel_occluded(const arbor_accel *a, const arbor_ray *r)
 {
-    return a->ops->occluded(a->impl, r);
+    return a->queries->occluded(a->impl, r);
 }
 
 void arbor_accel_stats(const arbor_accel *a, arbor_tree_stats *s)

@@ -49,6 +49,28 @@ static inline void accel_parallel(accel_run *r, uint32_t n, void (*fn)(void *ctx
     arbor_pool_parallel_within(r->pool, &r->budget, n, fn, ctx);
 }
 
+/* The ray queries of a tree kind, as one traversal kernel compiles them. */
+typedef struct {
+    bool (*intersect)(const void *impl, arbor_ray *r, arbor_hit *h);
+    bool (*intersect_counted)(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
+    bool (*occluded)(const void *impl, const arbor_ray *r);
+    bool (*intersect_traced)(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c,
+                             arbor_node_fn visit, void *user);
+} accel_queries;
+
+/* Traversal kernels. The Makefile compiles each source of its KERNEL_SRC
+ * list once per kernel, with that kernel's instruction set and
+ * -DACCEL_KERNEL=<name>, so one binary holds them all; accel.c picks one
+ * per build (arbor_accel_kernel_name). ACCEL_KERNEL_SYM(x) is x_<name>: a
+ * kernel source names what it exports with it, so the copies do not clash.
+ * Every kernel gives the same hits (the tests run each): they differ only
+ * in how many lanes an instruction holds. */
+typedef enum { ACCEL_KERNEL_SSE2, ACCEL_KERNEL_AVX2, ACCEL_KERNEL_COUNT } accel_kernel;
+
+#define ACCEL_KERNEL_CAT2(x, k) x##_##k
+#define ACCEL_KERNEL_CAT(x, k) ACCEL_KERNEL_CAT2(x, k)
+#define ACCEL_KERNEL_SYM(x) ACCEL_KERNEL_CAT(x, ACCEL_KERNEL)
+
 typedef struct {
     /* Builds a tree over m with validated options on run's threads; fills
      * every field of *stats except build_ms. NULL on failure: e filled, or,
@@ -56,11 +78,9 @@ typedef struct {
      * the cancel). Never a tree once accel_stop has returned true. */
     void *(*build)(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats,
                    arbor_err *e);
-    bool (*intersect)(const void *impl, arbor_ray *r, arbor_hit *h);
-    bool (*intersect_counted)(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
-    bool (*occluded)(const void *impl, const arbor_ray *r);
-    bool (*intersect_traced)(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c,
-                             arbor_node_fn visit, void *user);
+    /* The queries per kernel; a kind without kernels of its own gives the
+     * same table for each. */
+    const accel_queries *queries[ACCEL_KERNEL_COUNT];
     void (*walk)(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user);
     /* See arbor_accel_validate; stats are the ones build filled. */
     bool (*validate)(const void *impl, const arbor_mesh *m, const arbor_tree_stats *stats, arbor_err *e);

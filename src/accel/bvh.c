@@ -183,6 +183,5 @@ void bvh_walk(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user
 }
 
 const arbor_accel_ops arbor_bvh_ops = {
-    bvh_build,        bvh_intersect, bvh_intersect_counted, bvh_occluded,
-    bvh_intersect_traced, bvh_walk, bvh_validate,        bvh_destroy,
+    bvh_build, {&bvh_queries_sse2, &bvh_queries_avx2}, bvh_walk, bvh_validate, bvh_destroy,
 };

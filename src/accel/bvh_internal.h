@@ -21,8 +21,9 @@
  * The wide tree (bvh_wide.c) is what rays traverse: the binary tree
  * collapsed into nodes of up to BVH_WIDTH children whose boxes one SIMD slab
  * test checks at once, with leaf triangles in packs of BVH_WIDTH that one
- * SIMD triangle test checks at once. A wide node is 128 bytes (two cache
- * lines): its children's boxes as six rows of BVH_WIDTH lanes, and a 64-bit
+ * SIMD triangle test checks at once. A wide node is 32 BVH_WIDTH bytes
+ * (BVH_WIDTH / 2 cache lines): its children's boxes as six rows of
+ * BVH_WIDTH lanes, and a 64-bit
  * reference per child,
  *
  *     inner child: the wide node's index (never 0, the root)
@@ -58,7 +59,7 @@ typedef struct {
 
 _Static_assert(sizeof(bvh_node) == 32, "a node is half a cache line");
 
-#define BVH_WIDTH 4
+#define BVH_WIDTH 8
 #define BVH_REF_LEAF ((uint64_t)1 << 63)
 
 typedef struct {
@@ -66,7 +67,7 @@ typedef struct {
     uint64_t child[BVH_WIDTH];    /* references, as above */
 } bvh_wide_node;
 
-_Static_assert(sizeof(bvh_wide_node) == 128, "a wide node is two cache lines");
+_Static_assert(sizeof(bvh_wide_node) == 32 * BVH_WIDTH, "a wide node is whole cache lines");
 
 typedef struct {
     float v[3][3][BVH_WIDTH];     /* vertex a, b, c; axis x, y, z; lane = triangle */
@@ -96,12 +97,8 @@ static inline uint32_t bvh_packs_for(uint32_t tris) { return (tris + BVH_WIDTH -
 void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats,
                 arbor_err *e);
 
-/* bvh_traverse.c: the three queries of arbor_accel_ops. */
-bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h);
-bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
-bool bvh_occluded(const void *impl, const arbor_ray *r);
-bool bvh_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
-                          void *user);
+/* bvh_traverse.c, one copy per traversal kernel (accel_impl.h). */
+extern const accel_queries bvh_queries_sse2, bvh_queries_avx2;
 void bvh_walk(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user);
 
 /* Arrays of nodes and packs are 64-byte aligned, so that no node straddles

@@ -7,25 +7,36 @@
  * and `counts` is a compile-time NULL in the two uncounted queries, so their
  * counting code disappears.
  *
- * At a wide node one 4-lane slab test checks every child's box. The ray goes
- * on into the nearest child it enters and pushes the others, farthest first,
- * with their entry distances, on a stack; a popped entry whose distance lies
- * beyond the closest hit so far is skipped. An any-hit query needs no order
- * and takes the children as they come. A leaf's packs are tested four
- * triangles per step (pack_test), with the arithmetic of
- * arbor_triangle_intersect lane by lane, so each triangle gives exactly the
- * t, u, v brute force computes for it.
+ * This file is a traversal kernel (accel_impl.h): the Makefile compiles it
+ * once per instruction set, and what it exports is named by
+ * ACCEL_KERNEL_SYM. Its vectors are BVH_WIDTH lanes wide whatever the
+ * instruction set (simd.h): the layout is the same for every kernel.
+ *
+ * At a wide node one BVH_WIDTH-lane slab test checks every child's box. The
+ * ray goes on into the nearest child it enters and pushes the others,
+ * farthest first, with their entry distances, on a stack; a popped entry
+ * whose distance lies beyond the closest hit so far is skipped. An any-hit
+ * query needs no order and takes the children as they come. A leaf's packs
+ * are tested BVH_WIDTH triangles per step (tri_pack.h), with the arithmetic
+ * of arbor_triangle_intersect lane by lane, so each triangle gives exactly
+ * the t, u, v brute force computes for it.
  *
  * Ties. Among hits at exactly the same t the lowest triangle index wins, as
  * in brute force and the k-d tree, whatever leaf or lane finds them: once
  * there is a hit the triangle tests accept t up to the next float above
- * it, so an equal t reaches the index comparison, and popped entries are
- * skipped only when their entry distance is beyond the hit (entry <= t is
- * still visited: such a box may hold a tie).
+ * it, so an equal t reaches the index comparison, and boxes are culled
+ * (and popped entries skipped) only when their entry distance is beyond
+ * the hit grown by a margin for rounding (box_bound): an entry at t, or
+ * rounded just past it, may hold a tie.
  */
-#include <immintrin.h>
-
 #include "bvh_internal.h"
+
+#define SIMD_LANES BVH_WIDTH
+#include "tri_pack.h"
+
+#ifndef ACCEL_KERNEL
+#error "bvh_traverse.c is a traversal kernel: the Makefile compiles it with -DACCEL_KERNEL=<name>"
+#endif
 
 /* 1 + 2 gamma(3) with gamma(n) = n u / (1 - n u), u = 2^-24: scaling exit
  * distances by it makes the slab test conservative despite rounding (Ize,
@@ -35,149 +46,70 @@
 /* The helpers below must be inlined into the traversal: a call per node or
  * per ray costs as much as the work (measured on sponza, whose rays mostly
  * leave the model after a few nodes). */
-#define BVH_INLINE static inline __attribute__((always_inline))
+#define BVH_INLINE SIMD_INLINE
 
 /* Per-ray constants of the box test, each broadcast to all lanes: the
  * origin, the inverse direction (+-inf for a zero component), and per axis
  * the row of a node's boxes the ray enters through (lo, or hi when the
  * direction is negative) and the row it leaves through. */
 typedef struct {
-    __m128 org[3], inv[3];
+    vfloat org[3], inv[3];
     int near[3], far[3];
-    __m128 tmin;
+    vfloat tmin;
 } box_ray;
 
 BVH_INLINE void box_ray_setup(box_ray *q, const arbor_ray *r)
 {
-    /* one divps for the three axes: the divisions would otherwise queue
+    typedef float float4 __attribute__((vector_size(16)));
+    const float o[3] = {r->o.x, r->o.y, r->o.z};
+    /* one division for the three axes: the divisions would otherwise queue
      * one behind another at the start of every ray */
-    const __m128 o = _mm_setr_ps(r->o.x, r->o.y, r->o.z, 0.0f);
-    const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), _mm_setr_ps(r->d.x, r->d.y, r->d.z, 1.0f));
-    const int neg = _mm_movemask_ps(_mm_cmplt_ps(inv, _mm_setzero_ps()));
-    q->org[0] = _mm_shuffle_ps(o, o, _MM_SHUFFLE(0, 0, 0, 0));
-    q->org[1] = _mm_shuffle_ps(o, o, _MM_SHUFFLE(1, 1, 1, 1));
-    q->org[2] = _mm_shuffle_ps(o, o, _MM_SHUFFLE(2, 2, 2, 2));
-    q->inv[0] = _mm_shuffle_ps(inv, inv, _MM_SHUFFLE(0, 0, 0, 0));
-    q->inv[1] = _mm_shuffle_ps(inv, inv, _MM_SHUFFLE(1, 1, 1, 1));
-    q->inv[2] = _mm_shuffle_ps(inv, inv, _MM_SHUFFLE(2, 2, 2, 2));
+    const float4 inv = (float4){1.0f, 1.0f, 1.0f, 1.0f} / (float4){r->d.x, r->d.y, r->d.z, 1.0f};
     for (int a = 0; a < 3; a++) {
-        int is_neg = (neg >> a) & 1;
+        int is_neg = inv[a] < 0.0f;
+        q->org[a] = vset1(o[a]);
+        q->inv[a] = vset1(inv[a]);
         q->near[a] = a + 3 * is_neg;
         q->far[a] = a + 3 - 3 * is_neg;
     }
-    q->tmin = _mm_set1_ps(r->tmin);
+    q->tmin = vset1(r->tmin);
 }
 
-/* Per-ray constants of the triangle test (the watertight test's, ray.h):
- * the axis permutation k, the origin in that order, the shear constants.
- * Set up at the first leaf a ray reaches: many rays never reach one. */
-typedef struct {
-    int k[3];
-    __m128 org[3], shear[3], tmin;
-} tri_ray;
+/* The bound boxes are tested against for hits up to tmax: tmax grown by
+ * 2^-20 relative. A box holding a triangle whose computed t is tmax (a tie,
+ * or the hit an any-hit query with tmax just past it looks for) may have an
+ * entry distance that rounds above tmax: the entry carries three roundings
+ * and the triangle's t its own few ulps from the true distance. 2^-20
+ * covers both with room (kd_traverse.c's margin); culling a little less
+ * near the hit costs next to nothing. */
+#define BVH_TIE_SCALE (1.0f + 0x1p-20f)
 
-BVH_INLINE void tri_ray_setup(tri_ray *q, const arbor_ray *r)
+BVH_INLINE float box_bound(float tmax)
 {
-    const float o[3] = {r->o.x, r->o.y, r->o.z};
-    arbor_ray_prep p;
-    arbor_ray_prepare(r, &p);
-    q->k[0] = p.kx;
-    q->k[1] = p.ky;
-    q->k[2] = p.kz;
-    for (int a = 0; a < 3; a++)
-        q->org[a] = _mm_set1_ps(o[q->k[a]]);
-    q->shear[0] = _mm_set1_ps(p.sx);
-    q->shear[1] = _mm_set1_ps(p.sy);
-    q->shear[2] = _mm_set1_ps(p.sz);
-    q->tmin = _mm_set1_ps(r->tmin);
+    return tmax > 0.0f ? tmax * BVH_TIE_SCALE : tmax;
 }
 
 /* The slab test of a node's children. Per axis the entry and exit distances
  * are (plane - o) / d on the near and far plane, the exit scaled up by
  * BVH_EXIT_SCALE; then entry = max(entries, tmin), exit = min(exits, tmax),
- * folded with max/minps, which return their second operand when the first
+ * folded with vmax / vmin, which return their second operand when the first
  * is NaN: a zero direction component with the origin on one of that axis'
  * planes gives 0 * inf = NaN, and the slab then leaves the interval as it
  * was (the ray runs inside the plane). Returns the mask of children entered,
  * entry <= exit, and each one's entry distance in *entry. Empty slots
  * (lo +inf, hi -inf) give entry +inf and exit -inf on every axis. */
-BVH_INLINE int wide_boxes(const bvh_wide_node *n, const box_ray *q, __m128 tmax, __m128 *entry)
+BVH_INLINE int wide_boxes(const bvh_wide_node *n, const box_ray *q, vfloat tmax, vfloat *entry)
 {
-    const __m128 scale = _mm_set1_ps(BVH_EXIT_SCALE);
-    __m128 t_in = q->tmin, t_out = tmax;
+    const vfloat scale = vset1(BVH_EXIT_SCALE);
+    vfloat t_in = q->tmin, t_out = tmax;
     for (int a = 2; a >= 0; a--) {
-        __m128 near = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n->box[q->near[a]]), q->org[a]), q->inv[a]);
-        __m128 far = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n->box[q->far[a]]), q->org[a]), q->inv[a]);
-        t_in = _mm_max_ps(near, t_in);
-        t_out = _mm_min_ps(_mm_mul_ps(far, scale), t_out);
+        vfloat near = (vload(n->box[q->near[a]]) - q->org[a]) * q->inv[a];
+        vfloat far = (vload(n->box[q->far[a]]) - q->org[a]) * q->inv[a];
+        t_in = vmax(near, t_in);
+        t_out = vmin(far * scale, t_out);
     }
     *entry = t_in;
-    return _mm_movemask_ps(_mm_cmple_ps(t_in, t_out));
-}
-
-/* The watertight test (arbor_triangle_intersect) of four triangles, the same
- * operations in the same order on each lane, so the same results. Returns
- * the mask of lanes hit in (tmin, tmax), with their distances in *t and
- * their U, V, W and 1 / det in the rest for the barycentrics. Unused lanes
- * hold NaN vertices, which make every comparison false: never a hit. */
-typedef struct {
-    __m128 hit, t, v, w, inv;
-} pack_hits;
-
-BVH_INLINE int pack_test(const bvh_tri_pack *p, const tri_ray *q, __m128 tmax, pack_hits *out)
-{
-    const int kx = q->k[0], ky = q->k[1], kz = q->k[2];
-    __m128 az = _mm_sub_ps(_mm_load_ps(p->v[0][kz]), q->org[2]);
-    __m128 bz = _mm_sub_ps(_mm_load_ps(p->v[1][kz]), q->org[2]);
-    __m128 cz = _mm_sub_ps(_mm_load_ps(p->v[2][kz]), q->org[2]);
-    __m128 ax = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[0][kx]), q->org[0]), _mm_mul_ps(q->shear[0], az));
-    __m128 ay = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[0][ky]), q->org[1]), _mm_mul_ps(q->shear[1], az));
-    __m128 bx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[1][kx]), q->org[0]), _mm_mul_ps(q->shear[0], bz));
-    __m128 by = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[1][ky]), q->org[1]), _mm_mul_ps(q->shear[1], bz));
-    __m128 cx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[2][kx]), q->org[0]), _mm_mul_ps(q->shear[0], cz));
-    __m128 cy = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(p->v[2][ky]), q->org[1]), _mm_mul_ps(q->shear[1], cz));
-    __m128 u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
-    __m128 v = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
-    __m128 w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
-    const __m128 zero = _mm_setzero_ps();
-    int on_edge = _mm_movemask_ps(
-        _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(v, zero)), _mm_cmpeq_ps(w, zero)));
-    if (__builtin_expect(on_edge != 0, 0)) {
-        /* on an edge in single precision: decide those lanes exactly in double */
-        float Ax[4], Ay[4], Bx[4], By[4], Cx[4], Cy[4], U[4], V[4], W[4];
-        _mm_storeu_ps(Ax, ax), _mm_storeu_ps(Ay, ay), _mm_storeu_ps(Bx, bx), _mm_storeu_ps(By, by);
-        _mm_storeu_ps(Cx, cx), _mm_storeu_ps(Cy, cy);
-        _mm_storeu_ps(U, u), _mm_storeu_ps(V, v), _mm_storeu_ps(W, w);
-        for (int l = 0; l < 4; l++)
-            if (on_edge & (1 << l))
-                arbor_edge_functions_exact(Ax[l], Ay[l], Bx[l], By[l], Cx[l], Cy[l], &U[l], &V[l], &W[l]);
-        u = _mm_loadu_ps(U), v = _mm_loadu_ps(V), w = _mm_loadu_ps(W);
-    }
-    __m128 some_neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(v, zero)), _mm_cmplt_ps(w, zero));
-    __m128 some_pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(v, zero)), _mm_cmpgt_ps(w, zero));
-    __m128 det = _mm_add_ps(_mm_add_ps(u, v), w);
-    __m128 sz = q->shear[2];
-    __m128 T = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(u, sz), az), _mm_mul_ps(_mm_mul_ps(v, sz), bz)),
-                          _mm_mul_ps(_mm_mul_ps(w, sz), cz));
-    __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), det);
-    __m128 t = _mm_mul_ps(T, inv);
-    /* det == 0 needs no test of its own: then inv is infinite and t is
-     * NaN or infinite, outside (tmin, tmax) */
-    __m128 hit = _mm_andnot_ps(_mm_and_ps(some_neg, some_pos),
-                               _mm_and_ps(_mm_cmpgt_ps(t, q->tmin), _mm_cmplt_ps(t, tmax)));
-    out->hit = hit;
-    out->t = t;
-    out->v = v;
-    out->w = w;
-    out->inv = inv;
-    return _mm_movemask_ps(hit);
-}
-
-BVH_INLINE float lane(__m128 v, int l)
-{
-    float f[4];
-    _mm_storeu_ps(f, v);
-    return f[l];
+    return vmask(vle(t_in, t_out));
 }
 
 typedef struct {
@@ -238,18 +170,17 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
     bool tq_ready = false;
     /* tmax: the closest hit so far; limit: the triangle tests' bound, just
      * above tmax once there is a hit, so that a tie reaches the index rule */
-    float tmax = r->tmax, limit = r->tmax;
+    float tmax = r->tmax, limit = r->tmax, box_tmax = box_bound(r->tmax);
     stack_entry stack[BVH_MAX_DEPTH * (BVH_WIDTH - 1)];
     uint32_t sp = 0;
     uint64_t ref = 0; /* the root */
-    bool found = false;
     float hit_u = 0.0f, hit_v = 0.0f;
-    uint32_t hit_slot = 0;
+    uint32_t hit_tri = UINT32_MAX; /* UINT32_MAX: no hit yet */
     for (;;) {
         if (!bvh_ref_is_leaf(ref)) {
             const bvh_wide_node *n = &t->wide[bvh_ref_index(ref)];
-            __m128 entry;
-            int mask = wide_boxes(n, &q, _mm_set1_ps(tmax), &entry);
+            vfloat entry;
+            int mask = wide_boxes(n, &q, vset1(box_tmax), &entry);
             if (counts)
                 for (int c = 0; c < BVH_WIDTH; c++)
                     counts->nodes += n->child[c] != 0;
@@ -260,12 +191,10 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                 visit_node(visit, user, &at, false, 0, tested);
             }
             if (mask != 0) {
-                float te[4];
-                _mm_storeu_ps(te, entry);
                 int c = __builtin_ctz(mask);
                 mask &= mask - 1;
                 uint64_t near = n->child[c];
-                float t_near = te[c];
+                float t_near = entry[c];
                 int near_lane = c;
                 const uint32_t base = sp;
                 /* push the rest; for a closest hit keep the nearest to go
@@ -274,7 +203,7 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                     c = __builtin_ctz(mask);
                     mask &= mask - 1;
                     uint64_t other = n->child[c];
-                    float t_other = te[c];
+                    float t_other = entry[c];
                     int other_lane = c;
                     if (!any_hit && t_other < t_near) {
                         uint64_t r0 = near;
@@ -311,32 +240,28 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                 tq_ready = true;
             }
             for (uint32_t p = p0; p < p0 + bvh_packs_for(tris); p++) {
-                pack_hits ph;
-                int hits = pack_test(&t->packs[p], &tq, _mm_set1_ps(limit), &ph);
+                tri_pack_hits ph;
+                int hits = tri_pack_test(&t->packs[p].v[0][0][0], &tq, vset1(limit), &ph);
                 if (hits == 0)
                     continue;
                 if (any_hit)
                     return true;
-                /* the nearest lane hit; among lanes at that t the lowest
-                 * triangle index, and against the best so far the same */
-                __m128 th = _mm_or_ps(_mm_and_ps(ph.hit, ph.t), _mm_andnot_ps(ph.hit, _mm_set1_ps(INFINITY)));
-                __m128 m = _mm_min_ps(th, _mm_shuffle_ps(th, th, _MM_SHUFFLE(2, 3, 0, 1)));
-                m = _mm_min_ps(m, _mm_shuffle_ps(m, m, _MM_SHUFFLE(1, 0, 3, 2)));
-                int nearest = _mm_movemask_ps(_mm_cmpeq_ps(th, m)) & hits;
-                int l = __builtin_ctz(nearest);
-                for (int o = nearest & (nearest - 1); o != 0; o &= o - 1)
-                    if (t->pack_tri[BVH_WIDTH * p + (uint32_t)__builtin_ctz(o)] < t->pack_tri[BVH_WIDTH * p + (uint32_t)l])
-                        l = __builtin_ctz(o);
-                float tl = lane(ph.t, l);
-                uint32_t slot = BVH_WIDTH * p + (uint32_t)l;
-                if (found && tl == tmax && t->pack_tri[slot] > t->pack_tri[hit_slot])
-                    continue;
-                found = true;
-                tmax = tl;
-                limit = nextafterf(tl, INFINITY);
-                hit_u = lane(ph.v, l) * lane(ph.inv, l);
-                hit_v = lane(ph.w, l) * lane(ph.inv, l);
-                hit_slot = slot;
+                /* the nearest lane, the lowest triangle index on a tie; a
+                 * lane at t == tmax wins only with a lower index than the
+                 * best's (the test admits t up to limit for that) */
+                for (; hits != 0; hits &= hits - 1) {
+                    int l = __builtin_ctz(hits);
+                    float tl = ph.t[l];
+                    uint32_t tri = t->pack_tri[BVH_WIDTH * p + (uint32_t)l];
+                    if (tl < tmax || (tl == tmax && tri < hit_tri)) {
+                        tmax = tl;
+                        hit_tri = tri;
+                        hit_u = ph.v[l] * ph.inv[l];
+                        hit_v = ph.w[l] * ph.inv[l];
+                    }
+                }
+                limit = nextafterf(tmax, INFINITY);
+                box_tmax = box_bound(tmax);
             }
         }
         /* next: the most recently pushed entry that may still hold a closer hit */
@@ -344,7 +269,7 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             if (sp == 0)
                 goto done;
             sp--;
-            if (any_hit || stack[sp].t <= tmax) { /* an any-hit query never lowers tmax */
+            if (any_hit || stack[sp].t <= box_tmax) { /* an any-hit query never lowers it */
                 ref = stack[sp].ref;
                 if (visit)
                     at = places[sp];
@@ -353,16 +278,16 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
         }
     }
 done:
-    if (found && h != NULL) {
+    if (hit_tri != UINT32_MAX && h != NULL) {
         h->t = tmax;
         h->u = hit_u;
         h->v = hit_v;
-        h->tri = t->pack_tri[hit_slot];
+        h->tri = hit_tri;
     }
-    return found;
+    return hit_tri != UINT32_MAX;
 }
 
-bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
+static bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
 {
     if (!bvh_traverse(impl, r, false, h, NULL, NULL, NULL))
         return false;
@@ -370,7 +295,7 @@ bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
     return true;
 }
 
-bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
+static bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
 {
     if (!bvh_traverse(impl, r, false, h, c, NULL, NULL))
         return false;
@@ -378,7 +303,7 @@ bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_t
     return true;
 }
 
-bool bvh_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
+static bool bvh_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
                           void *user)
 {
     if (!bvh_traverse(impl, r, false, h, c, visit, user))
@@ -387,7 +312,10 @@ bool bvh_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_tr
     return true;
 }
 
-bool bvh_occluded(const void *impl, const arbor_ray *r)
+static bool bvh_occluded(const void *impl, const arbor_ray *r)
 {
     return bvh_traverse(impl, r, true, NULL, NULL, NULL, NULL);
 }
+
+const accel_queries ACCEL_KERNEL_SYM(bvh_queries) = {bvh_intersect, bvh_intersect_counted, bvh_occluded,
+                                                     bvh_intersect_traced};

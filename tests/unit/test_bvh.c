@@ -271,8 +271,9 @@ static void test_stats_by_hand(void)
         TEST_ASSERT_EQUAL_DOUBLE(1.0, s.mean_tris_per_leaf);
         TEST_ASSERT_EQUAL_UINT64(2, s.refs);
         /* binary: 3 nodes and 2 indices; wide: the two triangles make one
-         * leaf, a root with one pack (144 bytes of vertices, 4 indices) */
-        TEST_ASSERT_EQUAL_UINT64(3 * 32 + 2 * 4 + 128 + 144 + 4 * 4, s.bytes);
+         * leaf, a root with one pack (36 floats of vertices and 4 bytes of
+         * index per lane) */
+        TEST_ASSERT_EQUAL_UINT64(3 * 32 + 2 * 4 + 32 * BVH_WIDTH + 40 * BVH_WIDTH, s.bytes);
         TEST_ASSERT_DOUBLE_WITHIN(1e-9, expect, s.sah_cost);
         arbor_accel_free(a);
     }
