@@ -23,8 +23,7 @@
  * test checks at once, with leaf triangles in packs of BVH_WIDTH that one
  * SIMD triangle test checks at once. A wide node is 32 BVH_WIDTH bytes
  * (BVH_WIDTH / 2 cache lines): its children's boxes as six rows of
- * BVH_WIDTH lanes, and a 64-bit
- * reference per child,
+ * BVH_WIDTH lanes, and a 64-bit reference per child,
  *
  *     inner child: the wide node's index (never 0, the root)
  *     leaf child:  BVH_REF_LEAF | triangles << 32 | first pack

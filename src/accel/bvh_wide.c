@@ -7,7 +7,8 @@
  * single triangle does, so splits that small mostly add box tests. Two
  * packs' worth measured best (bunny, dragon, castle, flowers at 1 thread:
  * against one pack, dragon's shadow rays 2.81 -> 3.19 Mrays/s, bunny's 5.38
- * -> 5.48; three or four packs lose on castle and flowers). Any other
+ * -> 5.48; three or four packs lose on castle and flowers; measured at
+ * BVH_WIDTH 4, and at 8 one pack against two was mixed, see git log). Any other
  * binary inner node becomes a wide node whose children are found by opening,
  * among its current children that are not leaves, the one with the largest
  * surface area (the one rays are likeliest to enter), until there are
