@@ -52,6 +52,8 @@ typedef struct {
     double scale;                 /* opts.scale: the factor the mesh was measured at */
     uint32_t triangles;
     const char *accel, *builder;  /* "bvh"/"kd" and a builder name, or "embree" and "default" */
+    const char *kernel;           /* the traversal kernel the tree traced with (arbor_accel_kernel_name:
+                                   * "avx2", "sse2"); NULL in Embree's row (Embree picks its own) */
     int threads;
     double build_ms, mean_leaf_depth, mean_tris_per_leaf, sah_cost, render_ms;
     double mrays[ARBOR_SET_COUNT];

@@ -5,12 +5,13 @@
  *
  * Each function returns a new cJSON object the caller owns and frees with
  * cJSON_Delete, or NULL when out of memory. Numbers that do not apply (NAN:
- * Embree's tree statistics, for instance) become JSON null. Keys:
+ * Embree's tree statistics, for instance) and strings that do not (NULL:
+ * Embree's kernel) become JSON null. Keys:
  *   tree stats: model, triangles, accel, builder, layout ("binary" or
  *     "wide", arbor_layout), build_ms, nodes, leaves, empty_leaves,
  *     max_depth, mean_leaf_depth, mean_tris_per_leaf, refs, bytes, sah_cost:
  *     the shape of that one layout (build_ms is the whole tree's)
- *   bench row: model, scale, triangles, accel, builder, threads, build_ms,
+ *   bench row: model, scale, triangles, accel, builder, kernel, threads, build_ms,
  *     mean_leaf_depth, mean_tris_per_leaf, sah_cost, render_ms,
  *     primary_mrays, diffuse_mrays, shadow_mrays, primary_hits,
  *     primary_tsum, and with ratios primary_ratio, diffuse_ratio,

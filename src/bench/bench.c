@@ -267,6 +267,7 @@ static bool bench_tree(bench_run *b, arbor_accel_kind kind, arbor_builder builde
 {
     arbor_bench_row *row = &b->rows[b->done];
     row_init(b, row, arbor_accel_kind_name(kind), arbor_builder_name(builder));
+    row->kernel = arbor_accel_kernel_name();
     build_measure bm;
     bm.mesh = b->mesh;
     bm.tree = NULL;

@@ -23,9 +23,12 @@ static json_writer writer_new(void)
     return w;
 }
 
+/* NULL (not applicable) becomes null. */
 static void put_string(json_writer *w, const char *key, const char *v)
 {
-    w->ok = w->ok && cJSON_AddStringToObject(w->o, key, v) != NULL;
+    if (!w->ok)
+        return;
+    w->ok = (v == NULL ? cJSON_AddNullToObject(w->o, key) : cJSON_AddStringToObject(w->o, key, v)) != NULL;
 }
 
 /* NAN (not applicable) becomes null. */
@@ -79,6 +82,7 @@ cJSON *arbor_report_bench_row(const arbor_bench_row *r, bool with_ratios)
     put_number(&w, "triangles", r->triangles);
     put_string(&w, "accel", r->accel);
     put_string(&w, "builder", r->builder);
+    put_string(&w, "kernel", r->kernel);
     put_number(&w, "threads", r->threads);
     put_number(&w, "build_ms", r->build_ms);
     put_number(&w, "mean_leaf_depth", r->mean_leaf_depth);

@@ -83,7 +83,8 @@ static bool bench_model(const arbor_bench_opts *o, const char *path, arbor_bench
     fprintf(stderr, "bench: %s: load\n", model);
     if (!arbor_load_model(path, &mesh, e))
         return false;
-    fprintf(stderr, "bench: %s: %u triangles, scale %.17g\n", model, mesh.ntris, (double)o->scale);
+    fprintf(stderr, "bench: %s: %u triangles, scale %.17g, kernel %s\n", model, mesh.ntris, (double)o->scale,
+            arbor_accel_kernel_name());
     bool ok = arbor_bench_mesh(model, &mesh, o, rows, e);
     if (ok)
         check_hits(rows, arbor_bench_row_count(o));
@@ -118,6 +119,7 @@ static void print_table_row(const arbor_bench_row *r, bool with_ratios, bool csv
     put_number(csv, "%.0f", r->triangles);
     put_cell(csv, false, r->accel);
     put_cell(csv, false, r->builder);
+    put_cell(csv, false, r->kernel != NULL ? r->kernel : "-");
     put_number(csv, "%.0f", r->threads);
     put_number(csv, "%.2f", r->build_ms);
     put_number(csv, "%.2f", r->mean_leaf_depth);

@@ -111,13 +111,14 @@ stats = [json.loads(l) for l in open(sys.argv[1])]
 bench = [json.loads(l) for l in open(sys.argv[2])]
 want_stats = ["model", "triangles", "accel", "builder", "layout", "build_ms", "nodes", "leaves", "empty_leaves",
               "max_depth", "mean_leaf_depth", "mean_tris_per_leaf", "refs", "bytes", "sah_cost"]
-want_bench = ["model", "scale", "triangles", "accel", "builder", "threads", "build_ms", "mean_leaf_depth",
+want_bench = ["model", "scale", "triangles", "accel", "builder", "kernel", "threads", "build_ms", "mean_leaf_depth",
               "mean_tris_per_leaf", "sah_cost", "render_ms", "primary_mrays", "diffuse_mrays", "shadow_mrays",
               "primary_hits", "primary_tsum"]
 assert len(stats) == 1 and list(stats[0]) == want_stats, list(stats[0])
 assert stats[0]["layout"] == "binary", stats[0]
 assert len(bench) == 1 and list(bench[0]) == want_bench, list(bench[0])
 assert bench[0]["accel"] == "bvh" and bench[0]["builder"] == "sah" and bench[0]["primary_hits"] > 0
+assert bench[0]["kernel"] in ("avx2", "sse2"), bench[0]["kernel"]
 EOF
 }
 

@@ -116,6 +116,7 @@ static void test_every_tree_gets_its_row_and_the_same_hits_as_brute_force(void)
         TEST_ASSERT_EQUAL_STRING(arbor_builder_name((arbor_builder)(i % ARBOR_BUILDER_COUNT)), r->builder);
         TEST_ASSERT_EQUAL_UINT32(mesh.ntris, r->triangles);
         TEST_ASSERT_EQUAL_INT(2, r->threads);
+        TEST_ASSERT_EQUAL_STRING(arbor_accel_kernel_name(), r->kernel);
         TEST_ASSERT_EQUAL_UINT64_MESSAGE(truth, r->primary_hits, r->builder);
         TEST_ASSERT_TRUE(arbor_bench_same_hits(r, &rows[0]));
         TEST_ASSERT_TRUE(r->build_ms >= 0.0 && r->render_ms > 0.0 && r->sah_cost > 0.0);
@@ -254,7 +255,7 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
         row.ratio[s] = NAN;
     }
     char keys[512];
-    const char *row_keys = "model,scale,triangles,accel,builder,threads,build_ms,mean_leaf_depth,mean_tris_per_leaf,"
+    const char *row_keys = "model,scale,triangles,accel,builder,kernel,threads,build_ms,mean_leaf_depth,mean_tris_per_leaf,"
                            "sah_cost,render_ms,primary_mrays,diffuse_mrays,shadow_mrays,primary_hits,primary_tsum";
     cJSON *o = arbor_report_bench_row(&row, true);
     TEST_ASSERT_NOT_NULL(o);
@@ -262,6 +263,7 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
     TEST_ASSERT_EQUAL_STRING(row_keys, keys); /* Embree's own row: no ratios */
     TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "sah_cost")));
     TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "render_ms")));
+    TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "kernel")));
     cJSON_Delete(o);
 
     row.accel = "bvh";

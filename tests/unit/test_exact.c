@@ -22,8 +22,8 @@
  * with its corners rotated, and wound the other way; rays also aimed
  * exactly through vertices and edges). Brute force must return the lowest
  * triangle index among the nearest, checked against an enumeration of
- * every triangle, and so must every tree. A kind known not to meet a
- * check yet is skipped with what differs (TEST_IGNORE), never passed.
+ * every triangle, and so must every tree, and any-hit must agree to the
+ * ulp there too.
  */
 #include <math.h>
 #include <stdio.h>
@@ -626,13 +626,10 @@ static void tie_truth(arbor_mesh *m, truth_set *ts, const char *name, bool tilte
     TEST_ASSERT_TRUE_MESSAGE(tied > hits / 2, "too few ties");
 }
 
-/* Every tree on both grids. Trees of a kind in `known` (a mask of 1 << kind)
- * that differ are a known defect, not yet fixed: the test is then skipped
- * with what differs (tests/run.sh counts it), while a difference in any
- * other tree fails it. */
-static void check_trees_on_grids(check_kind kind, unsigned known, const char *defect)
+/* Every tree on both grids. */
+static void check_trees_on_grids(check_kind kind)
 {
-    tree_failures tf = {0, ""}, known_tf = {0, ""};
+    tree_failures tf = {0, ""};
     for (int tilted = 0; tilted < 2; tilted++) {
         const char *name = tilted ? "tilted grid" : "flat grid";
         arbor_mesh m;
@@ -646,31 +643,21 @@ static void check_trees_on_grids(check_kind kind, unsigned known, const char *de
                 mismatches mm = {0, 0, ""};
                 check_set(tree, "grid", &ts, kind, &mm);
                 arbor_accel_free(tree);
-                note_tree(known & (1u << k) ? &known_tf : &tf, what, &mm, ts.n);
+                note_tree(&tf, what, &mm, ts.n);
             }
         truth_free(&ts);
         arbor_mesh_free(&m);
     }
     TEST_ASSERT_EQUAL_UINT64_MESSAGE(0, tf.failed, tf.msg);
-    if (known_tf.failed > 0) {
-        char msg[2300];
-        snprintf(msg, sizeof msg, "known defect, %s: %s", defect, known_tf.msg);
-        TEST_IGNORE_MESSAGE(msg);
-    }
 }
 
-static void test_ties_go_to_the_lowest_index(void)
-{
-    check_trees_on_grids(CHECK_CLOSEST, 1u << ARBOR_ACCEL_BVH,
-                         "a bvh box whose entry distance rounds past the hit is skipped though it holds a tie "
-                         "(flat boxes, boxes meeting at a hit edge or vertex)");
-}
+/* Where boxes are flat (the flat grid) or meet at the edge or vertex a ray
+ * hits, a box's or cell's entry distance may round past the hit's t: a
+ * tree that culled against t itself would skip the box holding the tie. */
+static void test_ties_go_to_the_lowest_index(void) { check_trees_on_grids(CHECK_CLOSEST); }
 
-static void test_any_hit_is_exact_at_tmax(void)
-{
-    check_trees_on_grids(CHECK_AT_TMAX, 1u << ARBOR_ACCEL_BVH | 1u << ARBOR_ACCEL_KD,
-                         "with tmax a float past a hit, a bvh box or kd cell whose entry rounds past tmax is skipped");
-}
+/* The same rounding against a tmax one float past the hit. */
+static void test_any_hit_is_exact_at_tmax(void) { check_trees_on_grids(CHECK_AT_TMAX); }
 
 int main(void)
 {
