@@ -105,7 +105,9 @@ bool arbor_tree_layout_stats(const arbor_tree_stats *s, arbor_layout layout, arb
 
 /* Work done by one traced ray, for the heat mode and per-ray statistics. */
 typedef struct {
-    uint64_t nodes;  /* node steps: kd nodes visited, bvh child boxes tested */
+    uint64_t nodes;  /* node steps: nodes visited, inner and leaf, in the tree rays traverse
+                      * (a kd node; a bvh wide node, whose children's boxes one SIMD test
+                      * checks, or leaf), so both kinds' counts and heat maps compare */
     uint64_t tris;   /* triangle tests */
 } arbor_trace_counts;
 
@@ -138,8 +140,8 @@ bool arbor_accel_intersect_counted(const arbor_accel *a, arbor_ray *r, arbor_hit
 /* One node of a tree as the inspectors see it (the viewer's box overlay and
  * ray path). box: a bvh node's bounds, a kd node's cell; depth: the root
  * is 0; tris: a leaf's triangles (walk) or those a ray tested there
- * (traced); tests: the node steps a ray made there (traced: at a bvh inner
- * node the child boxes tested, at a kd node 1; 0 in a walk). */
+ * (traced); tests: the node steps a ray made there (traced: 1 at every
+ * node visited; 0 in a walk). */
 typedef struct {
     arbor_aabb box;
     uint32_t depth;

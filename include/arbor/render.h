@@ -31,8 +31,9 @@
  *            rays of length ao_radius * d that escape, as grey (any
  *            surface occludes, glass too).
  *   heat     false colour (blue, cyan, green, yellow, red, white) of each
- *            pixel's traversal cost = node steps + triangles tested by
- *            its primary rays (mean over samples); the top of the scale is
+ *            pixel's traversal cost = nodes visited + triangles tested
+ *            by its primary rays (mean over samples; arbor_trace_counts,
+ *            the same for both kinds); the top of the scale is
  *            the frame's 99th percentile, reported with the max and mean.
  * d is the model's diagonal |B.max - B.min|. The normals, depth, ao and
  * heat modes write their values as they are, without a transfer curve.

@@ -1,8 +1,10 @@
 /*
  * bvh.c - the bounding volume hierarchy as a tree kind: its arbor_accel_ops
- * table and its validator. The layouts are described in bvh_internal.h, the
- * builders in bvh_build.c, the wide tree in bvh_wide.c and the traversal in
- * bvh_traverse.c.
+ * table, the tree's memory and bytes, building it (the binary tree, then the
+ * wide tree collapsed from it) and its validator. The layouts are described
+ * in bvh_internal.h, the builders in bvh_build.c, the wide tree in
+ * bvh_wide.c, its statistics in bvh_wide_stats.c and the traversal in
+ * bvh_traverse.c; none of those calls another, only this file calls them.
  *
  * The validator walks the tree on its own, sharing nothing with the
  * builders but the node layout, and recounts every statistic from the walk,
@@ -13,6 +15,49 @@
 #include <string.h>
 
 #include "bvh_internal.h"
+
+static void bvh_tree_free(bvh_tree *t)
+{
+    if (t == NULL)
+        return;
+    free(t->nodes);
+    free(t->tri_index);
+    free(t->wide);
+    free(t->packs);
+    free(t->pack_tri);
+    free(t);
+}
+
+/* The bytes both layouts hold, for arbor_tree_stats.bytes. */
+static uint64_t bvh_tree_bytes(const bvh_tree *t)
+{
+    return (uint64_t)t->nnodes * sizeof(bvh_node) + (uint64_t)t->ntris * sizeof(uint32_t) +
+           (uint64_t)t->nwide * sizeof(bvh_wide_node) +
+           (uint64_t)t->npacks * (sizeof(bvh_tri_pack) + BVH_WIDTH * sizeof(uint32_t));
+}
+
+/* Builds the binary tree, collapses it into the wide tree rays traverse,
+ * and fills the statistics of both (but build_ms). NULL when memory runs
+ * out or the build is cancelled, e filled. */
+static void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats,
+                       arbor_err *e)
+{
+    bvh_tree *t = calloc(1, sizeof *t);
+    if (t == NULL) {
+        arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory");
+        return NULL;
+    }
+    bool parallel = run->threads > 1 && m->ntris >= BVH_PARALLEL_PASS_TRIS;
+    if (!bvh_build_binary(t, m, o, run, stats, e) || !bvh_wide_build(t, m, run, parallel, e)) {
+        bvh_tree_free(t);
+        return NULL;
+    }
+    stats->bytes = bvh_tree_bytes(t);
+    stats->has_wide = t->nnodes > 0;
+    if (stats->has_wide)
+        bvh_wide_stats(t, &stats->wide);
+    return t;
+}
 
 /* What the validating walk has seen so far. */
 typedef struct {

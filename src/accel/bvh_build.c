@@ -81,9 +81,8 @@
  * for every thread (a few parts per thread), no more. */
 #define BVH_FORK_MIN_TRIS 8192
 #define BVH_FORK_EXTRA_LEVELS 2
-/* Meshes this large also split the linear passes over all triangles, and
- * top-level nodes this large bin in at most BVH_BIN_PARTS parallel parts. */
-#define BVH_PARALLEL_PASS_TRIS 65536
+/* Top-level nodes of at least BVH_PARALLEL_PASS_TRIS (bvh_internal.h) bin
+ * in at most this many parallel parts. */
 #define BVH_BIN_PARTS 8
 
 /* A triangle reference: the triangle's box, with its mesh index in the
@@ -793,7 +792,7 @@ static uint32_t build_subtree(const bvh_builder *B, uint32_t s, uint32_t b, uint
     return 1 + left + build_subtree(B, s + 1 + left, m, e, depth + 1, &kids[1], tally);
 }
 
-static void tally_to_stats(const bvh_tally *t, const bvh_tree *tree, double root_area, arbor_tree_stats *s)
+static void tally_to_stats(const bvh_tally *t, double root_area, arbor_tree_stats *s)
 {
     memset(s, 0, sizeof *s);
     s->nodes = t->inner + t->leaves;
@@ -805,20 +804,7 @@ static void tally_to_stats(const bvh_tally *t, const bvh_tree *tree, double root
         s->mean_leaf_depth = (double)t->leaf_depth_sum / (double)t->leaves;
         s->mean_tris_per_leaf = (double)t->refs / (double)t->leaves;
     }
-    s->bytes = bvh_tree_bytes(tree);
     s->sah_cost = root_area > 0.0 ? (t->inner_area + t->leaf_area) / root_area : (double)(t->inner + t->refs);
-}
-
-void bvh_tree_free(bvh_tree *t)
-{
-    if (t == NULL)
-        return;
-    free(t->nodes);
-    free(t->tri_index);
-    free(t->wide);
-    free(t->packs);
-    free(t->pack_tri);
-    free(t);
 }
 
 /* The references of mesh triangles [b, e) and their boxes: a linear pass,
@@ -881,44 +867,17 @@ static void builder_init(bvh_builder *B, const arbor_build_opts *o, accel_run *r
     B->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : BVH_COST_INTERSECT;
 }
 
-void *bvh_alloc_aligned(size_t bytes)
-{
-    return aligned_alloc(64, bytes > 0 ? (bytes + 63) & ~(size_t)63 : 64);
-}
-
-/* In place when realloc allows (it usually does when shrinking), through an
- * aligned copy when it moved the array to a less aligned place. */
-void *bvh_shrink_aligned(void *p, size_t used)
-{
-    size_t bytes = used > 0 ? (used + 63) & ~(size_t)63 : 64;
-    void *shrunk = realloc(p, bytes);
-    if (shrunk == NULL || ((uintptr_t)shrunk & 63) == 0)
-        return shrunk != NULL ? shrunk : p;
-    void *out = aligned_alloc(64, bytes);
-    if (out != NULL)
-        memcpy(out, shrunk, used);
-    free(shrunk);
-    return out;
-}
-
-void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats,
-                arbor_err *e)
+bool bvh_build_binary(bvh_tree *tree, const arbor_mesh *m, const arbor_build_opts *o, accel_run *run,
+                      arbor_tree_stats *stats, arbor_err *e)
 {
     uint32_t n = m->ntris;
-    if (n > UINT32_MAX / 2) {
-        arbor_fail(e, ARBOR_ERR_INVALID, "bvh: %u triangles is more than node indices can address", n);
-        return NULL;
-    }
-    bvh_tree *tree = calloc(1, sizeof *tree);
-    if (tree == NULL) {
-        arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory");
-        return NULL;
-    }
+    if (n > UINT32_MAX / 2)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "bvh: %u triangles is more than node indices can address", n);
     tree->ntris = n;
     if (n == 0) {
         bvh_tally none = {0};
-        tally_to_stats(&none, tree, 0.0, stats);
-        return tree;
+        tally_to_stats(&none, 0.0, stats);
+        return true;
     }
     bvh_builder B;
     builder_init(&B, o, run);
@@ -942,19 +901,12 @@ void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, 
     scratch = NULL;
     if (tree->nodes == NULL)
         goto nomem;
-    if (!bvh_wide_build(tree, m, run, parallel, e)) {
-        bvh_tree_free(tree);
-        return NULL;
-    }
-    tally_to_stats(&tally, tree, aabb_area(bvh_node_box(&tree->nodes[0])), stats);
-    stats->has_wide = true;
-    bvh_wide_stats(tree, &stats->wide);
-    return tree;
+    tally_to_stats(&tally, aabb_area(bvh_node_box(&tree->nodes[0])), stats);
+    return true;
 nomem:
     arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory building over %u triangles", n);
 fail:
     free(prims);
     free(scratch);
-    bvh_tree_free(tree);
-    return NULL;
+    return false;
 }

@@ -44,6 +44,8 @@
 #define ARBOR_BVH_INTERNAL_H
 
 #include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
 
 #include "accel_impl.h"
 
@@ -90,11 +92,18 @@ static inline uint32_t bvh_ref_tris(uint64_t ref) { return (uint32_t)(ref >> 32)
 /* The packs a leaf of that many triangles fills. */
 static inline uint32_t bvh_packs_for(uint32_t tris) { return (tris + BVH_WIDTH - 1) / BVH_WIDTH; }
 
-/* bvh_build.c: builds the tree for o->builder on run's threads and fills
- * every statistic but build_ms. NULL when memory runs out (e filled) or the
- * build is cancelled (see accel_impl.h). */
-void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats,
-                arbor_err *e);
+/* Linear passes over all triangles of a mesh this large (making the
+ * references, copying the packs' vertices) split into two parallel halves
+ * when the build has threads. */
+#define BVH_PARALLEL_PASS_TRIS 65536
+
+/* bvh_build.c: builds t's binary tree (nodes, nnodes, ntris, tri_index)
+ * for o->builder on run's threads and fills its statistics but build_ms
+ * and bytes. False when memory runs out or the build is cancelled (e
+ * filled; see accel_impl.h); t's arrays are then the caller's to free.
+ * bvh.c builds a tree by this, then bvh_wide_build. */
+bool bvh_build_binary(bvh_tree *t, const arbor_mesh *m, const arbor_build_opts *o, accel_run *run,
+                      arbor_tree_stats *stats, arbor_err *e);
 
 /* bvh_traverse.c, one copy per traversal kernel (accel_impl.h). */
 extern const accel_queries bvh_queries_sse2, bvh_queries_avx2;
@@ -104,9 +113,26 @@ void bvh_walk(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user
  * more cache lines than it must. Both builds allocate them for the worst
  * case, write them once, then shrink them to the part used, keeping the
  * alignment: p itself when realloc cannot shrink it, NULL (p freed) only
- * when an aligned copy was needed and memory ran out. bvh_build.c. */
-void *bvh_alloc_aligned(size_t bytes);
-void *bvh_shrink_aligned(void *p, size_t used);
+ * when an aligned copy was needed and memory ran out. Inline here, so that
+ * the builds and bvh.c, which frees the arrays, share them without calling
+ * each other. */
+static inline void *bvh_alloc_aligned(size_t bytes)
+{
+    return aligned_alloc(64, bytes > 0 ? (bytes + 63) & ~(size_t)63 : 64);
+}
+
+static inline void *bvh_shrink_aligned(void *p, size_t used)
+{
+    size_t bytes = used > 0 ? (used + 63) & ~(size_t)63 : 64;
+    void *shrunk = realloc(p, bytes);
+    if (shrunk == NULL || ((uintptr_t)shrunk & 63) == 0)
+        return shrunk != NULL ? shrunk : p;
+    void *out = aligned_alloc(64, bytes); /* realloc moved it to a less aligned place */
+    if (out != NULL)
+        memcpy(out, shrunk, used);
+    free(shrunk);
+    return out;
+}
 
 /* bvh_wide.c: builds t's wide tree from its binary tree, its linear pass in
  * two parallel halves when parallel (false, e filled, when memory runs
@@ -116,10 +142,6 @@ bool bvh_wide_validate(const bvh_tree *t, const arbor_mesh *m, arbor_err *e);
 /* bvh_wide_stats.c: the wide tree's statistics (nodes, leaves, depths,
  * bytes, sah_cost under its own cost model). */
 void bvh_wide_stats(const bvh_tree *t, arbor_layout_stats *s);
-/* The bytes both layouts hold, for arbor_tree_stats.bytes. */
-uint64_t bvh_tree_bytes(const bvh_tree *t);
-
-void bvh_tree_free(bvh_tree *t);
 
 static inline arbor_aabb bvh_node_box(const bvh_node *n)
 {

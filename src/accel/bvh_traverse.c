@@ -152,7 +152,8 @@ static void visit_node(arbor_node_fn visit, void *user, const visit_place *at, b
 
 /* The closest hit (any_hit false) or the first found (any_hit true) in
  * (r->tmin, r->tmax); fills *h on a hit unless h is NULL. counts, when not
- * NULL, gets the child boxes and the triangles tested; visit, when not
+ * NULL, gets the nodes visited (wide nodes and leaves: one step each, as a
+ * k-d node is) and the triangles tested; visit, when not
  * NULL, each node visited (the inspector's ray path). counts and visit are
  * compile-time NULL in the plain queries, which lose their code. */
 BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit, arbor_hit *h,
@@ -182,14 +183,9 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             vfloat entry;
             int mask = wide_boxes(n, &q, vset1(box_tmax), &entry);
             if (counts)
-                for (int c = 0; c < BVH_WIDTH; c++)
-                    counts->nodes += n->child[c] != 0;
-            if (visit) {
-                uint32_t tested = 0;
-                for (int c = 0; c < BVH_WIDTH; c++)
-                    tested += n->child[c] != 0;
-                visit_node(visit, user, &at, false, 0, tested);
-            }
+                counts->nodes++;
+            if (visit)
+                visit_node(visit, user, &at, false, 0, 1);
             if (mask != 0) {
                 int c = __builtin_ctz(mask);
                 mask &= mask - 1;
@@ -231,10 +227,12 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             }
         } else {
             uint32_t tris = bvh_ref_tris(ref), p0 = bvh_ref_index(ref);
-            if (counts)
+            if (counts) {
+                counts->nodes++;
                 counts->tris += tris;
+            }
             if (visit)
-                visit_node(visit, user, &at, true, tris, 0);
+                visit_node(visit, user, &at, true, tris, 1);
             if (!tq_ready) {
                 tri_ray_setup(&tq, r);
                 tq_ready = true;

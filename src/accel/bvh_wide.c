@@ -218,13 +218,6 @@ bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool paral
     return true;
 }
 
-uint64_t bvh_tree_bytes(const bvh_tree *t)
-{
-    return (uint64_t)t->nnodes * sizeof(bvh_node) + (uint64_t)t->ntris * sizeof(uint32_t) +
-           (uint64_t)t->nwide * sizeof(bvh_wide_node) +
-           (uint64_t)t->npacks * (sizeof(bvh_tri_pack) + BVH_WIDTH * sizeof(uint32_t));
-}
-
 /* What the validating walk of the wide tree has seen so far. */
 typedef struct {
     const bvh_tree *t;
