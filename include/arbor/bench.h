@@ -56,6 +56,9 @@ typedef struct {
                                    * "avx2", "sse2"); NULL in Embree's row (Embree picks its own) */
     int threads;
     double build_ms, mean_leaf_depth, mean_tris_per_leaf, sah_cost, render_ms;
+    double bytes_per_tri;         /* memory of the structure rays traverse, per triangle: the
+                                   * bvh's wide tree, the kd tree, Embree's BVH (its leaves'
+                                   * triangle data included; the mesh's own arrays not) */
     double mrays[ARBOR_SET_COUNT];
     double ratio[ARBOR_SET_COUNT];
     uint64_t primary_hits;  /* of one pass over the primary set */

@@ -12,6 +12,7 @@
 #define ARBOR_EMBREE_PEER_H
 
 #include <stdbool.h>
+#include <stdint.h>
 
 #include "arbor/err.h"
 #include "arbor/mesh.h"
@@ -26,6 +27,12 @@ bool arbor_embree_available(void);
  * triangle scene at the default build quality; *commit_ms gets the
  * rtcCommitScene time. NULL with e filled on failure. */
 arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e);
+
+/* The bytes the scene's build left allocated (its BVH, with the triangle
+ * data its leaves hold), as the device's memory monitor counts them: the
+ * device's total after rtcCommitScene less its total before (the geometry
+ * buffers). 0 without Embree. */
+uint64_t arbor_embree_bvh_bytes(const arbor_embree_peer *p);
 
 /* The arbor_trace_kernel for a peer: rtcIntersect1 / rtcOccluded1 per ray. */
 void arbor_embree_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t);

@@ -12,7 +12,7 @@
  *     max_depth, mean_leaf_depth, mean_tris_per_leaf, refs, bytes, sah_cost:
  *     the shape of that one layout (build_ms is the whole tree's)
  *   bench row: model, scale, triangles, accel, builder, kernel, threads, build_ms,
- *     mean_leaf_depth, mean_tris_per_leaf, sah_cost, render_ms,
+ *     mean_leaf_depth, mean_tris_per_leaf, sah_cost, bytes_per_tri, render_ms,
  *     primary_mrays, diffuse_mrays, shadow_mrays, primary_hits,
  *     primary_tsum, and with ratios primary_ratio, diffuse_ratio,
  *     shadow_ratio (left out where there is none: Embree's own row)

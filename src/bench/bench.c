@@ -250,7 +250,7 @@ static void row_init(const bench_run *b, arbor_bench_row *row, const char *accel
     row->accel = accel;
     row->builder = builder;
     row->threads = b->threads;
-    row->mean_leaf_depth = row->mean_tris_per_leaf = row->sah_cost = row->render_ms = NAN;
+    row->mean_leaf_depth = row->mean_tris_per_leaf = row->sah_cost = row->render_ms = row->bytes_per_tri = NAN;
     for (int s = 0; s < ARBOR_SET_COUNT; s++)
         row->ratio[s] = NAN;
 }
@@ -279,6 +279,8 @@ static bool bench_tree(bench_run *b, arbor_accel_kind kind, arbor_builder builde
         row->mean_leaf_depth = s.mean_leaf_depth;
         row->mean_tris_per_leaf = s.mean_tris_per_leaf;
         row->sah_cost = s.sah_cost;
+        if (b->mesh->ntris > 0)
+            row->bytes_per_tri = (double)(s.has_wide ? s.wide.bytes : s.bytes) / (double)b->mesh->ntris;
         render_measure r;
         r.pool = b->pool;
         r.tree = bm.tree;
@@ -297,8 +299,10 @@ static bool bench_embree(bench_run *b, arbor_err *e)
     arbor_bench_row *row = &b->rows[b->done];
     row_init(b, row, "embree", "default");
     embree_measure m = {b->mesh, b->threads, NULL};
-    bool ok = median_of_runs(b->o->runs, b->o->cancel, measure_embree_build, &m, &row->build_ms, e) &&
-              time_sets(b, arbor_embree_kernel, m.peer, row, e);
+    bool ok = median_of_runs(b->o->runs, b->o->cancel, measure_embree_build, &m, &row->build_ms, e);
+    if (ok && b->mesh->ntris > 0)
+        row->bytes_per_tri = (double)arbor_embree_bvh_bytes(m.peer) / (double)b->mesh->ntris;
+    ok = ok && time_sets(b, arbor_embree_kernel, m.peer, row, e);
     arbor_embree_free(m.peer);
     if (ok)
         row_finished(b);

@@ -7,6 +7,7 @@
 #ifdef ARBOR_HAVE_EMBREE
 
 #include <embree3/rtcore.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -16,8 +17,18 @@
 struct arbor_embree_peer {
     RTCDevice device;
     RTCScene scene;
-    arbor_err *err; /* where the device's error callback reports, during build only */
+    arbor_err *err;           /* where the device's error callback reports, during build only */
+    atomic_llong allocated;   /* the device's bytes, from its memory monitor (its build threads too) */
+    uint64_t bvh_bytes;       /* what the scene's commit left allocated */
 };
+
+static bool on_device_memory(void *user, ssize_t bytes, bool post)
+{
+    (void)post;
+    arbor_embree_peer *p = user;
+    atomic_fetch_add(&p->allocated, (long long)bytes);
+    return true;
+}
 
 static void on_device_error(void *user, enum RTCError code, const char *msg)
 {
@@ -76,12 +87,16 @@ arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *
         return NULL;
     }
     rtcSetDeviceErrorFunction(p->device, on_device_error, p);
+    rtcSetDeviceMemoryMonitorFunction(p->device, on_device_memory, p);
     p->scene = rtcNewScene(p->device);
     bool ok = p->scene != NULL && add_mesh(p, m, &local);
+    long long before = atomic_load(&p->allocated);
     double t0 = arbor_now_ms();
     if (ok)
         rtcCommitScene(p->scene);
     *commit_ms = arbor_now_ms() - t0;
+    long long after = atomic_load(&p->allocated);
+    p->bvh_bytes = after > before ? (uint64_t)(after - before) : 0;
     p->err = NULL;
     if (!ok || local.status != ARBOR_OK) {
         if (local.status == ARBOR_OK)
@@ -92,6 +107,11 @@ arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *
         return NULL;
     }
     return p;
+}
+
+uint64_t arbor_embree_bvh_bytes(const arbor_embree_peer *p)
+{
+    return p->bvh_bytes;
 }
 
 void arbor_embree_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)
@@ -158,6 +178,12 @@ arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *
     *commit_ms = 0.0;
     arbor_fail(e, ARBOR_ERR_INVALID, "built without Embree; run `make bench-embree`");
     return NULL;
+}
+
+uint64_t arbor_embree_bvh_bytes(const arbor_embree_peer *p)
+{
+    (void)p;
+    return 0;
 }
 
 void arbor_embree_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)

@@ -88,6 +88,7 @@ cJSON *arbor_report_bench_row(const arbor_bench_row *r, bool with_ratios)
     put_number(&w, "mean_leaf_depth", r->mean_leaf_depth);
     put_number(&w, "mean_tris_per_leaf", r->mean_tris_per_leaf);
     put_number(&w, "sah_cost", r->sah_cost);
+    put_number(&w, "bytes_per_tri", r->bytes_per_tri);
     put_number(&w, "render_ms", r->render_ms);
     for (int s = 0; s < ARBOR_SET_COUNT; s++) {
         char key[32];

@@ -125,6 +125,7 @@ static void print_table_row(const arbor_bench_row *r, bool with_ratios, bool csv
     put_number(csv, "%.2f", r->mean_leaf_depth);
     put_number(csv, "%.2f", r->mean_tris_per_leaf);
     put_number(csv, "%.2f", r->sah_cost);
+    put_number(csv, "%.1f", r->bytes_per_tri);
     put_number(csv, "%.1f", r->render_ms);
     for (int s = 0; s < ARBOR_SET_COUNT; s++)
         put_number(csv, "%.2f", r->mrays[s]);

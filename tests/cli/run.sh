@@ -112,7 +112,7 @@ bench = [json.loads(l) for l in open(sys.argv[2])]
 want_stats = ["model", "triangles", "accel", "builder", "layout", "build_ms", "nodes", "leaves", "empty_leaves",
               "max_depth", "mean_leaf_depth", "mean_tris_per_leaf", "refs", "bytes", "sah_cost"]
 want_bench = ["model", "scale", "triangles", "accel", "builder", "kernel", "threads", "build_ms", "mean_leaf_depth",
-              "mean_tris_per_leaf", "sah_cost", "render_ms", "primary_mrays", "diffuse_mrays", "shadow_mrays",
+              "mean_tris_per_leaf", "sah_cost", "bytes_per_tri", "render_ms", "primary_mrays", "diffuse_mrays", "shadow_mrays",
               "primary_hits", "primary_tsum"]
 assert len(stats) == 1 and list(stats[0]) == want_stats, list(stats[0])
 assert stats[0]["layout"] == "binary", stats[0]

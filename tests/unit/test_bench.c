@@ -121,6 +121,8 @@ static void test_every_tree_gets_its_row_and_the_same_hits_as_brute_force(void)
         TEST_ASSERT_TRUE(arbor_bench_same_hits(r, &rows[0]));
         TEST_ASSERT_TRUE(r->build_ms >= 0.0 && r->render_ms > 0.0 && r->sah_cost > 0.0);
         TEST_ASSERT_TRUE(r->mean_leaf_depth >= 0.0 && r->mean_tris_per_leaf > 0.0);
+        /* a leaf lists each triangle at least once: a 4-byte index or more */
+        TEST_ASSERT_TRUE(r->bytes_per_tri >= 4.0);
         for (int s = 0; s < ARBOR_SET_COUNT; s++) {
             TEST_ASSERT_TRUE(r->mrays[s] > 0.0);
             TEST_ASSERT_TRUE(isnan(r->ratio[s])); /* no Embree */
@@ -249,14 +251,14 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
     snprintf(row.model, sizeof row.model, "castle.obj");
     row.accel = "embree";
     row.builder = "default";
-    row.mean_leaf_depth = row.mean_tris_per_leaf = row.sah_cost = row.render_ms = NAN;
+    row.mean_leaf_depth = row.mean_tris_per_leaf = row.sah_cost = row.render_ms = row.bytes_per_tri = NAN;
     for (int s = 0; s < ARBOR_SET_COUNT; s++) {
         row.mrays[s] = 1.5;
         row.ratio[s] = NAN;
     }
     char keys[512];
     const char *row_keys = "model,scale,triangles,accel,builder,kernel,threads,build_ms,mean_leaf_depth,mean_tris_per_leaf,"
-                           "sah_cost,render_ms,primary_mrays,diffuse_mrays,shadow_mrays,primary_hits,primary_tsum";
+                           "sah_cost,bytes_per_tri,render_ms,primary_mrays,diffuse_mrays,shadow_mrays,primary_hits,primary_tsum";
     cJSON *o = arbor_report_bench_row(&row, true);
     TEST_ASSERT_NOT_NULL(o);
     keys_of(o, keys, sizeof keys);
