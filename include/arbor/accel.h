@@ -62,6 +62,9 @@ typedef struct {
     float cost_traverse;  /* SAH cost of visiting an inner node; 0 = default */
     float cost_intersect; /* SAH cost of one triangle test; 0 = default */
     float empty_bonus;    /* kd SAH: fraction of cost saved for an empty side; <0 = default */
+    bool drop_binary;     /* bvh: free the binary tree once it is collapsed into the wide tree
+                           * rays traverse (a daemon's memory); its statistics stay, and
+                           * arbor_accel_validate then checks the wide tree alone */
 } arbor_build_opts;
 
 /* A tree's two layouts. The builders of both kinds make a binary tree,
@@ -152,9 +155,10 @@ typedef struct {
 /* Called per node; a walk stops when it returns false (a trace does not). */
 typedef bool (*arbor_node_fn)(void *user, const arbor_node_info *n);
 
-/* Every node down to max_depth, depth first, parents before children: the
- * bvh's binary tree (the one arbor_accel_stats describes), the kd tree's
- * cells. */
+/* Every node down to max_depth, depth first, parents before children, of
+ * the tree rays traverse: the bvh's wide tree (the nodes
+ * arbor_accel_intersect_traced visits; arbor_accel_stats' "wide" layout),
+ * the kd tree's cells. */
 void arbor_accel_walk(const arbor_accel *a, uint32_t max_depth, arbor_node_fn fn, void *user);
 
 /* arbor_accel_intersect_counted, also calling visit at every node the

@@ -31,7 +31,7 @@ static void bvh_tree_free(bvh_tree *t)
 /* The bytes both layouts hold, for arbor_tree_stats.bytes. */
 static uint64_t bvh_tree_bytes(const bvh_tree *t)
 {
-    return (uint64_t)t->nnodes * sizeof(bvh_node) + (uint64_t)t->ntris * sizeof(uint32_t) +
+    return (uint64_t)t->nnodes * sizeof(bvh_node) + (t->tri_index != NULL ? (uint64_t)t->ntris * sizeof(uint32_t) : 0) +
            (uint64_t)t->nwide * sizeof(bvh_wide_node) +
            (uint64_t)t->npacks * (sizeof(bvh_tri_pack) + BVH_WIDTH * sizeof(uint32_t));
 }
@@ -52,10 +52,18 @@ static void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run
         bvh_tree_free(t);
         return NULL;
     }
-    stats->bytes = bvh_tree_bytes(t);
     stats->has_wide = t->nnodes > 0;
     if (stats->has_wide)
         bvh_wide_stats(t, &stats->wide);
+    if (o->drop_binary && t->nnodes > 0) {
+        free(t->nodes);
+        free(t->tri_index);
+        t->nodes = NULL;
+        t->tri_index = NULL;
+        t->nnodes = 0;
+        t->binary_dropped = true;
+    }
+    stats->bytes = bvh_tree_bytes(t);
     return t;
 }
 
@@ -166,6 +174,11 @@ static bool bvh_validate(const void *impl, const arbor_mesh *m, const arbor_tree
     const bvh_tree *t = impl;
     if (t->ntris != m->ntris)
         return arbor_fail(e, ARBOR_ERR_INVALID, "bvh: built over %u triangles, the mesh has %u", t->ntris, m->ntris);
+    if (t->binary_dropped) /* the wide tree alone is left to check */
+        return s->bytes == bvh_tree_bytes(t) ? bvh_wide_validate(t, m, e)
+                                             : arbor_fail(e, ARBOR_ERR_INVALID, "bvh stats: %llu bytes, the arrays hold %llu",
+                                                          (unsigned long long)s->bytes,
+                                                          (unsigned long long)bvh_tree_bytes(t));
     if ((t->nnodes == 0) != (t->ntris == 0))
         return arbor_fail(e, ARBOR_ERR_INVALID, "bvh: %u nodes for %u triangles", t->nnodes, t->ntris);
     bvh_check k;
@@ -197,33 +210,42 @@ static void bvh_destroy(void *impl)
     bvh_tree_free(impl);
 }
 
-/* The binary tree depth first, parents before children, down to max_depth. */
+/* The wide tree, the one rays traverse (its nodes are those
+ * arbor_accel_intersect_traced visits), depth first, parents before
+ * children, down to max_depth. A wide node's box is the union of its
+ * children's; a leaf's is its lane's. */
 void bvh_walk(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user)
 {
     const bvh_tree *t = impl;
-    if (t->nnodes == 0)
+    if (t->nwide == 0)
         return;
     struct {
-        uint32_t node, depth;
-    } stack[BVH_MAX_DEPTH + 1];
+        uint64_t ref;
+        arbor_aabb box;
+        uint32_t depth;
+    } stack[BVH_MAX_DEPTH * (BVH_WIDTH - 1) + 1];
     uint32_t sp = 0;
-    stack[sp].node = 0;
+    stack[sp].ref = 0; /* the root */
+    stack[sp].box = bvh_wide_box(&t->wide[0]);
     stack[sp++].depth = 0;
     while (sp > 0) {
         sp--;
-        uint32_t i = stack[sp].node, depth = stack[sp].depth;
-        const bvh_node *n = &t->nodes[i];
-        bool leaf = n->count > 0;
-        arbor_node_info info = {bvh_node_box(n), depth, leaf, leaf ? n->count : 0, 0};
+        uint64_t ref = stack[sp].ref;
+        uint32_t depth = stack[sp].depth;
+        bool leaf = bvh_ref_is_leaf(ref);
+        arbor_node_info info = {stack[sp].box, depth, leaf, leaf ? bvh_ref_tris(ref) : 0, 0};
         if (!fn(user, &info))
             return;
         if (leaf || depth == max_depth)
             continue;
-        /* right below left, so the left subtree comes first */
-        stack[sp].node = n->index;
-        stack[sp++].depth = depth + 1;
-        stack[sp].node = i + 1;
-        stack[sp++].depth = depth + 1;
+        /* the last child deepest, so the first comes out first */
+        const bvh_wide_node *n = &t->wide[bvh_ref_index(ref)];
+        for (int c = BVH_WIDTH - 1; c >= 0; c--)
+            if (n->child[c] != 0) {
+                stack[sp].ref = n->child[c];
+                stack[sp].box = bvh_lane_box(n, c);
+                stack[sp++].depth = depth + 1;
+            }
     }
 }
 

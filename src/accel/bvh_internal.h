@@ -75,8 +75,9 @@ typedef struct {
 } bvh_tri_pack;
 
 typedef struct {
-    bvh_node *nodes;          /* nnodes, depth-first */
-    uint32_t nnodes;
+    bvh_node *nodes;          /* nnodes, depth-first; NULL once dropped */
+    uint32_t nnodes;          /* 0 once dropped */
+    bool binary_dropped;      /* opts.drop_binary: nodes and tri_index freed after the collapse */
     uint32_t ntris;
     uint32_t *tri_index;      /* ntris mesh triangle indices, in leaf order */
     bvh_wide_node *wide;      /* nwide, depth-first, 64-byte aligned */
@@ -142,6 +143,27 @@ bool bvh_wide_validate(const bvh_tree *t, const arbor_mesh *m, arbor_err *e);
 /* bvh_wide_stats.c: the wide tree's statistics (nodes, leaves, depths,
  * bytes, sah_cost under its own cost model). */
 void bvh_wide_stats(const bvh_tree *t, arbor_layout_stats *s);
+
+/* Child c's box in wide node n. */
+static inline arbor_aabb bvh_lane_box(const bvh_wide_node *n, int c)
+{
+    arbor_aabb b = {vec3(n->box[0][c], n->box[1][c], n->box[2][c]), vec3(n->box[3][c], n->box[4][c], n->box[5][c])};
+    return b;
+}
+
+/* Wide node n's box: the union of its children's (the root's has no lane
+ * of its own to be read from). */
+static inline arbor_aabb bvh_wide_box(const bvh_wide_node *n)
+{
+    arbor_aabb b = {vec3(INFINITY, INFINITY, INFINITY), vec3(-INFINITY, -INFINITY, -INFINITY)};
+    for (int c = 0; c < BVH_WIDTH; c++)
+        if (n->child[c] != 0) {
+            arbor_aabb l = bvh_lane_box(n, c);
+            b.lo = vec3_min(b.lo, l.lo);
+            b.hi = vec3_max(b.hi, l.hi);
+        }
+    return b;
+}
 
 static inline arbor_aabb bvh_node_box(const bvh_node *n)
 {

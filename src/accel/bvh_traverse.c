@@ -124,25 +124,6 @@ typedef struct {
     uint32_t depth;
 } visit_place;
 
-static arbor_aabb lane_box(const bvh_wide_node *n, int c)
-{
-    arbor_aabb b = {vec3(n->box[0][c], n->box[1][c], n->box[2][c]), vec3(n->box[3][c], n->box[4][c], n->box[5][c])};
-    return b;
-}
-
-/* The root's box: the union of its children's. */
-static arbor_aabb root_box(const bvh_tree *t)
-{
-    arbor_aabb b = {vec3(INFINITY, INFINITY, INFINITY), vec3(-INFINITY, -INFINITY, -INFINITY)};
-    for (int c = 0; c < BVH_WIDTH; c++)
-        if (t->wide[0].child[c] != 0) {
-            arbor_aabb l = lane_box(&t->wide[0], c);
-            b.lo = vec3_min(b.lo, l.lo);
-            b.hi = vec3_max(b.hi, l.hi);
-        }
-    return b;
-}
-
 static void visit_node(arbor_node_fn visit, void *user, const visit_place *at, bool leaf, uint32_t tris,
                        uint32_t tests)
 {
@@ -164,7 +145,7 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
     visit_place at = {{vec3(0, 0, 0), vec3(0, 0, 0)}, 0};
     visit_place places[BVH_MAX_DEPTH * (BVH_WIDTH - 1)]; /* the stack's places; untouched without visit */
     if (visit)
-        at.box = root_box(t);
+        at.box = bvh_wide_box(&t->wide[0]);
     box_ray q;
     box_ray_setup(&q, r);
     tri_ray tq;
@@ -218,11 +199,11 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                     stack[i].ref = other;
                     stack[i].t = t_other;
                     if (visit)
-                        places[i] = (visit_place){lane_box(n, other_lane), at.depth + 1};
+                        places[i] = (visit_place){bvh_lane_box(n, other_lane), at.depth + 1};
                 }
                 ref = near;
                 if (visit)
-                    at = (visit_place){lane_box(n, near_lane), at.depth + 1};
+                    at = (visit_place){bvh_lane_box(n, near_lane), at.depth + 1};
                 continue;
             }
         } else {

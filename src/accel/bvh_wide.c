@@ -228,12 +228,6 @@ typedef struct {
     uint32_t next_pack;   /* and the pack */
 } wide_check;
 
-static arbor_aabb lane_box(const bvh_wide_node *n, int c)
-{
-    arbor_aabb b = {vec3(n->box[0][c], n->box[1][c], n->box[2][c]), vec3(n->box[3][c], n->box[4][c], n->box[5][c])};
-    return b;
-}
-
 static bool check_pack_lane(wide_check *k, uint32_t p, int lane, bool used, const arbor_aabb *box)
 {
     const bvh_tri_pack *pack = &k->t->packs[p];
@@ -290,7 +284,7 @@ static bool check_wide_node(wide_check *k, uint32_t w, const arbor_aabb *parent,
     k->next_wide++;
     const bvh_wide_node *n = &k->t->wide[w];
     for (int c = 0; c < BVH_WIDTH; c++) {
-        arbor_aabb box = lane_box(n, c);
+        arbor_aabb box = bvh_lane_box(n, c);
         uint64_t ref = n->child[c];
         if (ref == 0) {
             if (box.lo.x != INFINITY || box.lo.y != INFINITY || box.lo.z != INFINITY || box.hi.x != -INFINITY ||
@@ -311,7 +305,7 @@ static bool check_wide_node(wide_check *k, uint32_t w, const arbor_aabb *parent,
 
 bool bvh_wide_validate(const bvh_tree *t, const arbor_mesh *m, arbor_err *e)
 {
-    if (t->nnodes == 0) {
+    if (t->ntris == 0) {
         if (t->nwide != 0 || t->npacks != 0)
             return arbor_fail(e, ARBOR_ERR_INVALID, "bvh: an empty tree with %u wide nodes", t->nwide);
         return true;
@@ -319,7 +313,9 @@ bool bvh_wide_validate(const bvh_tree *t, const arbor_mesh *m, arbor_err *e)
     wide_check k = {t, m, e, calloc(m->ntris, 1), 0, 0};
     if (k.seen == NULL)
         return arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory validating");
-    arbor_aabb root = bvh_node_box(&t->nodes[0]);
+    /* the root's children lie in the binary root's box, or, that dropped,
+     * in their own union */
+    arbor_aabb root = t->binary_dropped ? bvh_wide_box(&t->wide[0]) : bvh_node_box(&t->nodes[0]);
     bool ok = check_wide_node(&k, 0, &root, 0);
     if (ok && (k.next_wide != t->nwide || k.next_pack != t->npacks))
         ok = arbor_fail(e, ARBOR_ERR_INVALID, "bvh: the walk reaches %u of %u wide nodes and %u of %u packs",

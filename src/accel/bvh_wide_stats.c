@@ -25,25 +25,6 @@ typedef struct {
     double leaf_depths;
 } wide_sums;
 
-static arbor_aabb child_box(const bvh_wide_node *n, int c)
-{
-    arbor_aabb b = {vec3(n->box[0][c], n->box[1][c], n->box[2][c]), vec3(n->box[3][c], n->box[4][c], n->box[5][c])};
-    return b;
-}
-
-/* The box of wide node w: the union of its children's. */
-static arbor_aabb node_box(const bvh_tree *t, uint32_t w)
-{
-    arbor_aabb b = {vec3(INFINITY, INFINITY, INFINITY), vec3(-INFINITY, -INFINITY, -INFINITY)};
-    for (int c = 0; c < BVH_WIDTH; c++)
-        if (t->wide[w].child[c] != 0) {
-            arbor_aabb k = child_box(&t->wide[w], c);
-            b.lo = vec3_min(b.lo, k.lo);
-            b.hi = vec3_max(b.hi, k.hi);
-        }
-    return b;
-}
-
 /* Adds wide node w, at depth, whose box is `box`, and its subtree. */
 static void add_node(wide_sums *x, uint32_t w, arbor_aabb box, uint32_t depth)
 {
@@ -58,14 +39,14 @@ static void add_node(wide_sums *x, uint32_t w, arbor_aabb box, uint32_t depth)
         if (ref == 0)
             continue;
         if (!bvh_ref_is_leaf(ref)) {
-            add_node(x, bvh_ref_index(ref), child_box(n, c), depth + 1);
+            add_node(x, bvh_ref_index(ref), bvh_lane_box(n, c), depth + 1);
             continue;
         }
         uint32_t tris = bvh_ref_tris(ref);
         s->nodes++;
         s->leaves++;
         s->refs += tris;
-        s->sah_cost += bvh_area_ratio(aabb_area(child_box(n, c)), x->root_area) * bvh_packs_for(tris);
+        s->sah_cost += bvh_area_ratio(aabb_area(bvh_lane_box(n, c)), x->root_area) * bvh_packs_for(tris);
         x->leaf_depths += depth + 1;
         if (depth + 1 > s->max_depth)
             s->max_depth = depth + 1;
@@ -79,7 +60,7 @@ void bvh_wide_stats(const bvh_tree *t, arbor_layout_stats *s)
                (uint64_t)t->npacks * (sizeof(bvh_tri_pack) + BVH_WIDTH * sizeof(uint32_t));
     if (t->nwide == 0)
         return;
-    arbor_aabb root = node_box(t, 0);
+    arbor_aabb root = bvh_wide_box(&t->wide[0]);
     wide_sums x = {t, aabb_area(root), s, 0.0};
     add_node(&x, 0, root, 0);
     s->mean_leaf_depth = s->leaves > 0 ? x.leaf_depths / (double)s->leaves : 0.0;

@@ -97,12 +97,15 @@ const char *arbor_tree_state_name(arbor_tree_state s)
 }
 
 /* Bytes per triangle a built tree takes, about the largest of the trees of
- * ../shared/models (bvh sah: both layouts; kd: nodes and leaf lists), so
- * that a build that cannot fit is refused before it starts rather than
- * after. */
-static uint64_t build_estimate(arbor_accel_kind kind, uint32_t ntris)
+ * ../shared/models (arbord stats --accel all --builder all): the bvh's
+ * wide tree alone (the store drops the binary one), 47-78; the kd tree's
+ * nodes, leaf lists and leaf packs, which copy every listed triangle's
+ * corners, 287-429 for sah, up to 1,631 for the simple builders, which
+ * split triangles far more often. So that a build that cannot fit is
+ * refused before it starts rather than after. */
+static uint64_t build_estimate(arbor_accel_kind kind, arbor_builder builder, uint32_t ntris)
 {
-    uint64_t per_tri = kind == ARBOR_ACCEL_BVH ? 120 : 160;
+    uint64_t per_tri = kind == ARBOR_ACCEL_BVH ? 80 : builder == ARBOR_BUILD_SAH ? 450 : 1700;
     return per_tri * ntris + 4096;
 }
 
@@ -522,6 +525,7 @@ static void build_run(void *ctx, uint32_t task)
     opts.threads = s->config.build_threads;
     opts.pool = s->config.pool;
     opts.cancel = &b->cancel;
+    opts.drop_binary = true; /* rays, boxes and ray paths all use the wide tree */
     arbor_err err;
     arbor_err_clear(&err);
     arbor_accel *accel = atomic_load(&b->cancel) ? NULL : arbor_accel_build(&b->model->mesh, &opts, &err);
@@ -672,7 +676,7 @@ static bool could_fit(arbor_store *s, uint64_t need)
 static bool build_start(arbor_store *s, arbor_model *m, arbor_accel_kind kind, arbor_builder builder,
                         arbor_err *e)
 {
-    uint64_t need = build_estimate(kind, m->mesh.ntris);
+    uint64_t need = build_estimate(kind, builder, m->mesh.ntris);
     bool ok = could_fit(s, need);
     if (!ok)
         fail_nospace(s, need, "building the tree", e);

@@ -198,7 +198,12 @@ def _cli_stats(path):
 
 def _same_stats(http, cli, what):
     check(STATS_KEYS <= set(http), "%s: STATS lacks %s" % (what, STATS_KEYS - set(http)))
-    for k in STATS_KEYS - {"build_ms", "model"}:
+    skip = {"build_ms", "model"}
+    if "wide" in http:
+        # the daemon drops a bvh's binary tree once collapsed into the wide one
+        eq(http["bytes"], 0, "%s: bytes of the binary tree the daemon dropped" % what)
+        skip.add("bytes")
+    for k in STATS_KEYS - skip:
         a, b = http[k], cli[k]
         if isinstance(b, float) or isinstance(a, float):
             ok = a is not None and abs(a - b) <= 1e-12 * max(1.0, abs(b))
@@ -428,7 +433,9 @@ def test_boxes_root_is_model_bounds():
         check(all(abs(g - w) < 1e-5 for g, w in zip(b[k], m["bounds"][k])),
               "bvh root box %s %r vs model bounds %r" % (k, b[k], m["bounds"][k]))
     j2 = expect_json(d.get("/api/models/sphere/trees/bvh/sah/boxes?depth=2&all=1"))
-    check(3 <= j2["count"] <= 7 and j2["count"] == len(j2["boxes"]), "boxes depth 2 all=1: count %r" % j2["count"])
+    # the 8-wide tree rays traverse: the root, up to 8 children, up to 64 grandchildren
+    check(3 <= j2["count"] <= 1 + 8 + 64 and j2["count"] == len(j2["boxes"]),
+          "boxes depth 2 all=1: count %r" % j2["count"])
     eq(sorted({x["depth"] for x in j2["boxes"]}), [0, 1, 2], "depths with all=1")
     j3 = expect_json(d.get("/api/models/sphere/trees/bvh/sah/boxes?depth=30&leaves=1"))
     check(j3["count"] > 0 and all(x["leaf"] for x in j3["boxes"]), "leaves=1 gave non-leaves or none")

@@ -193,6 +193,43 @@ static void test_random_soups(void)
     }
 }
 
+/* The daemon's trees drop the binary tree once collapsed: the tree rays
+ * traverse is the same, so are the hits (brute force's), the statistics
+ * but bytes, and the walk; only the binary layout's bytes are gone. */
+static void test_dropped_binary_tree(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 3000, 77);
+    arbor_ray *rays = test_random_rays(&m, 4000, 5);
+    truth_set ts = truth_make(&m, rays, 4000);
+    for (size_t k = 0; k < NBUILDERS; k++) {
+        arbor_build_opts o;
+        arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, builders[k]);
+        o.threads = 1;
+        arbor_accel *kept = build_valid(&m, &o);
+        o.drop_binary = true;
+        arbor_accel *dropped = build_valid(&m, &o);
+        check_rays(dropped, &m, &ts, arbor_builder_name(builders[k]));
+        arbor_tree_stats a, b;
+        arbor_accel_stats(kept, &a);
+        arbor_accel_stats(dropped, &b);
+        TEST_ASSERT_EQUAL_UINT64(a.nodes, b.nodes);
+        TEST_ASSERT_EQUAL_DOUBLE(a.sah_cost, b.sah_cost);
+        TEST_ASSERT_EQUAL_UINT64(a.wide.nodes, b.wide.nodes);
+        TEST_ASSERT_EQUAL_UINT64(a.wide.bytes, b.wide.bytes);
+        TEST_ASSERT_EQUAL_UINT64(a.wide.bytes, b.bytes);
+        TEST_ASSERT_TRUE(a.bytes > b.bytes);
+        arbor_layout_stats binary;
+        TEST_ASSERT_TRUE(arbor_tree_layout_stats(&b, ARBOR_LAYOUT_BINARY, &binary));
+        TEST_ASSERT_EQUAL_UINT64(0, binary.bytes);
+        arbor_accel_free(kept);
+        arbor_accel_free(dropped);
+    }
+    truth_free(&ts);
+    free(rays);
+    arbor_mesh_free(&m);
+}
+
 static void test_empty_mesh_misses_everything(void)
 {
     arbor_mesh m;
@@ -681,6 +718,7 @@ int main(void)
     RUN_TEST(test_options);
     RUN_TEST(test_sah_has_lowest_cost);
     RUN_TEST(test_parallel_build_matches_serial);
+    RUN_TEST(test_dropped_binary_tree);
     RUN_TEST(test_validator_catches_corruption);
     RUN_TEST(test_galleon);
     RUN_TEST(test_castle);
