@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "arbor/brute.h"
 #include "arbor/camera.h"
 #include "support.h"
 
@@ -148,4 +149,33 @@ arbor_ray *test_aimed_rays(const arbor_vec3 *origins, size_t norigins, const arb
             rays[o * ntargets + t] = r;
         }
     return rays;
+}
+
+void test_truth_compute(test_truth *ts, const arbor_mesh *m, arbor_ray *rays, size_t n)
+{
+    ts->rays = rays;
+    ts->n = n;
+    ts->hit = malloc((n ? n : 1) * sizeof *ts->hit);
+    ts->found = malloc((n ? n : 1) * sizeof *ts->found);
+    if (ts->hit == NULL || ts->found == NULL) {
+        fprintf(stderr, "test_truth_compute: out of memory for %zu rays\n", n);
+        abort();
+    }
+    arbor_brute_intersect_many(NULL, m, rays, n, ts->hit, ts->found, 0);
+}
+
+size_t test_truth_hits(const test_truth *ts)
+{
+    size_t hits = 0;
+    for (size_t i = 0; i < ts->n; i++)
+        hits += ts->found[i];
+    return hits;
+}
+
+void test_truth_free(test_truth *ts)
+{
+    free(ts->rays);
+    free(ts->hit);
+    free(ts->found);
+    memset(ts, 0, sizeof *ts);
 }

@@ -1,11 +1,13 @@
 /*
  * support.h - helpers shared by the unit tests: where the real models are,
  * a fixed-seed random generator, random rays and triangle soups, rays aimed
- * through a mesh's vertices and edges, and the PROTOCOL.md primary rays.
+ * through a mesh's vertices and edges, the PROTOCOL.md primary rays, and
+ * brute force's answers for a ray set.
  */
 #ifndef ARBOR_TEST_SUPPORT_H
 #define ARBOR_TEST_SUPPORT_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -48,5 +50,22 @@ arbor_ray *test_aimed_rays(const arbor_vec3 *origins, size_t norigins, const arb
 
 /* |a - b| <= rel * max(|a|, |b|) */
 int test_close(float a, float b, float rel);
+
+/* A ray set and brute force's closest hit of each ray, the independent
+ * truth the trees are held to (for an occlusion set, found[i] is whether
+ * ray i is occluded: a closest hit in (tmin, tmax) exists exactly when some
+ * hit does). */
+typedef struct {
+    arbor_ray *rays;
+    size_t n;
+    arbor_hit *hit;
+    bool *found;
+} test_truth;
+
+/* Brute force over rays[0, n) on all cores; takes ownership of rays. */
+void test_truth_compute(test_truth *ts, const arbor_mesh *m, arbor_ray *rays, size_t n);
+/* How many rays hit. */
+size_t test_truth_hits(const test_truth *ts);
+void test_truth_free(test_truth *ts);
 
 #endif

@@ -28,30 +28,6 @@
 void setUp(void) {}
 void tearDown(void) {}
 
-/* Brute-force answers for one ray set. */
-typedef struct {
-    arbor_ray *rays;
-    size_t n;
-    arbor_hit *hit;
-    bool *found;
-} truth_set;
-
-static void truth_compute(truth_set *ts, const arbor_mesh *m, arbor_ray *rays, size_t n)
-{
-    ts->rays = rays;
-    ts->n = n;
-    ts->hit = malloc(n * sizeof *ts->hit);
-    ts->found = malloc(n * sizeof *ts->found);
-    arbor_brute_intersect_many(NULL, m, rays, n, ts->hit, ts->found, 0);
-}
-
-static void truth_free(truth_set *ts)
-{
-    free(ts->rays);
-    free(ts->hit);
-    free(ts->found);
-}
-
 /* The hit names a triangle that really is hit at that t. */
 static bool hit_is_real(const arbor_mesh *m, const arbor_ray *r, const arbor_hit *h)
 {
@@ -67,7 +43,7 @@ static bool hit_is_real(const arbor_mesh *m, const arbor_ray *r, const arbor_hit
 
 /* Closest hits of tree on the set agree with brute force; returns mismatches
  * and describes the first in msg. */
-static size_t check_closest(const arbor_accel *tree, const arbor_mesh *m, const truth_set *ts, char *msg,
+static size_t check_closest(const arbor_accel *tree, const arbor_mesh *m, const test_truth *ts, char *msg,
                             size_t msglen)
 {
     size_t bad = 0;
@@ -88,7 +64,7 @@ static size_t check_closest(const arbor_accel *tree, const arbor_mesh *m, const 
 
 /* Any-hit answers follow from the closest hit: with tmax at half the closest
  * distance nothing is hit, with tmax at twice it something is. */
-static size_t check_occluded(const arbor_accel *tree, const truth_set *ts, char *msg, size_t msglen)
+static size_t check_occluded(const arbor_accel *tree, const test_truth *ts, char *msg, size_t msglen)
 {
     size_t bad = 0;
     for (size_t i = 0; i < ts->n; i++) {
@@ -131,8 +107,8 @@ static arbor_accel *build_valid(const arbor_mesh *m, arbor_accel_kind kind, arbo
 }
 
 /* Builds every kind x builder over m and checks each against the truth sets. */
-static void check_all_trees(const char *name, const arbor_mesh *m, const truth_set *random_set,
-                            const truth_set *protocol_set)
+static void check_all_trees(const char *name, const arbor_mesh *m, const test_truth *random_set,
+                            const test_truth *protocol_set)
 {
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++) {
         for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
@@ -158,19 +134,19 @@ static void check_all_trees(const char *name, const arbor_mesh *m, const truth_s
  * stride-th pixel in x and y on large ones (brute force is O(triangles)). */
 static void check_mesh(const char *name, const arbor_mesh *m, int stride)
 {
-    truth_set random_set, protocol_set;
-    truth_compute(&random_set, m, test_random_rays(m, RANDOM_RAYS, 7), RANDOM_RAYS);
+    test_truth random_set, protocol_set;
+    test_truth_compute(&random_set, m, test_random_rays(m, RANDOM_RAYS, 7), RANDOM_RAYS);
     size_t np;
     arbor_ray *prays = test_protocol_rays(m, stride, &np);
-    truth_compute(&protocol_set, m, prays, np);
+    test_truth_compute(&protocol_set, m, prays, np);
     size_t hits = 0;
     for (size_t i = 0; i < random_set.n; i++)
         hits += random_set.found[i];
     /* a ray set that misses everything would prove nothing */
     TEST_ASSERT_TRUE_MESSAGE(hits > RANDOM_RAYS / 10, "too few random rays hit the model");
     check_all_trees(name, m, &random_set, &protocol_set);
-    truth_free(&random_set);
-    truth_free(&protocol_set);
+    test_truth_free(&random_set);
+    test_truth_free(&protocol_set);
 }
 
 static void check_file(const char *path, int stride)
@@ -234,8 +210,8 @@ static void check_aimed(const char *name, const arbor_mesh *m, const arbor_vec3 
 {
     size_t ntargets;
     arbor_vec3 *targets = test_vertices_and_edge_midpoints(m, &ntargets);
-    truth_set ts;
-    truth_compute(&ts, m, test_aimed_rays(origins, norigins, targets, ntargets), norigins * ntargets);
+    test_truth ts;
+    test_truth_compute(&ts, m, test_aimed_rays(origins, norigins, targets, ntargets), norigins * ntargets);
     free(targets);
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
         for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
@@ -260,7 +236,7 @@ static void check_aimed(const char *name, const arbor_mesh *m, const arbor_vec3 
                 TEST_FAIL_MESSAGE(f);
             }
         }
-    truth_free(&ts);
+    test_truth_free(&ts);
 }
 
 static void test_rays_through_vertices_and_edges(void)

@@ -56,16 +56,9 @@ static arbor_accel *build_bvh(const arbor_mesh *m, arbor_builder b, int threads)
  * probe the interval: one starting at the hit (tmin = t) and one ending
  * there (tmax = t). Any hit in a ray's interval exists exactly when a
  * closest one does, so `found` is the any-hit truth too. */
-typedef struct {
-    arbor_ray *rays;
-    arbor_hit *hit;
-    bool *found;
-    size_t n;
-} truth_set;
-
-static truth_set truth_make(const arbor_mesh *m, const arbor_ray *rays, size_t n)
+static test_truth truth_make(const arbor_mesh *m, const arbor_ray *rays, size_t n)
 {
-    truth_set ts;
+    test_truth ts;
     ts.rays = malloc(2 * n * sizeof *ts.rays);
     ts.hit = malloc(2 * n * sizeof *ts.hit);
     ts.found = malloc(2 * n * sizeof *ts.found);
@@ -85,17 +78,10 @@ static truth_set truth_make(const arbor_mesh *m, const arbor_ray *rays, size_t n
     return ts;
 }
 
-static void truth_free(truth_set *ts)
-{
-    free(ts->rays);
-    free(ts->hit);
-    free(ts->found);
-}
-
 /* The tree's closest hit for ray i against brute force's: same found, same
  * t to 1e-5 relative, tmax shrunk to it, and the reported triangle really
  * hit there with those barycentrics. */
-static void expect_same_hit(const arbor_accel *a, const arbor_mesh *m, const truth_set *ts, size_t i, bool counted,
+static void expect_same_hit(const arbor_accel *a, const arbor_mesh *m, const test_truth *ts, size_t i, bool counted,
                             const char *what)
 {
     const arbor_ray *ray = &ts->rays[i];
@@ -129,7 +115,7 @@ static void expect_same_hit(const arbor_accel *a, const arbor_mesh *m, const tru
 }
 
 /* Closest hit (every fourth ray counted) and any hit for every ray of ts. */
-static void check_rays(const arbor_accel *a, const arbor_mesh *m, const truth_set *ts, const char *what)
+static void check_rays(const arbor_accel *a, const arbor_mesh *m, const test_truth *ts, const char *what)
 {
     for (size_t i = 0; i < ts->n; i++) {
         expect_same_hit(a, m, ts, i, i % 4 == 0, what);
@@ -142,7 +128,7 @@ static void check_rays(const arbor_accel *a, const arbor_mesh *m, const truth_se
 /* Every builder over m, validated and checked on the rays. */
 static void check_builders(const arbor_mesh *m, const arbor_ray *rays, size_t n, int threads, const char *name)
 {
-    truth_set ts = truth_make(m, rays, n);
+    test_truth ts = truth_make(m, rays, n);
     size_t hits = 0;
     for (size_t i = 0; i < n; i++)
         hits += ts.found[i];
@@ -155,7 +141,7 @@ static void check_builders(const arbor_mesh *m, const arbor_ray *rays, size_t n,
         check_rays(a, m, &ts, what);
         arbor_accel_free(a);
     }
-    truth_free(&ts);
+    test_truth_free(&ts);
 }
 
 /* check_builders on n of test_random_rays. */
@@ -201,7 +187,7 @@ static void test_dropped_binary_tree(void)
     arbor_mesh m;
     test_random_soup(&m, 3000, 77);
     arbor_ray *rays = test_random_rays(&m, 4000, 5);
-    truth_set ts = truth_make(&m, rays, 4000);
+    test_truth ts = truth_make(&m, rays, 4000);
     for (size_t k = 0; k < NBUILDERS; k++) {
         arbor_build_opts o;
         arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, builders[k]);
@@ -225,7 +211,7 @@ static void test_dropped_binary_tree(void)
         arbor_accel_free(kept);
         arbor_accel_free(dropped);
     }
-    truth_free(&ts);
+    test_truth_free(&ts);
     free(rays);
     arbor_mesh_free(&m);
 }
@@ -462,7 +448,7 @@ static void test_options(void)
     arbor_mesh m;
     test_random_soup(&m, 1000, 11);
     arbor_ray *rays = test_random_rays(&m, 2000, 12);
-    truth_set ts = truth_make(&m, rays, 2000);
+    test_truth ts = truth_make(&m, rays, 2000);
     free(rays);
     for (size_t k = 0; k < NBUILDERS; k++) {
         arbor_build_opts o;
@@ -501,7 +487,7 @@ static void test_options(void)
     check_rays(cheap, &m, &ts, "cheap triangles");
     arbor_accel_free(cheap);
     arbor_accel_free(dear);
-    truth_free(&ts);
+    test_truth_free(&ts);
     arbor_mesh_free(&m);
 }
 
@@ -531,7 +517,7 @@ static void test_parallel_build_matches_serial(void)
     arbor_mesh m;
     test_random_soup(&m, 70000, 14);
     arbor_ray *rays = test_random_rays(&m, 500, 15);
-    truth_set ts = truth_make(&m, rays, 100);
+    test_truth ts = truth_make(&m, rays, 100);
     for (size_t k = 0; k < NBUILDERS; k++) {
         arbor_accel *one = build_bvh(&m, builders[k], 1);
         arbor_accel *two = build_bvh(&m, builders[k], 2);
@@ -556,7 +542,7 @@ static void test_parallel_build_matches_serial(void)
         arbor_accel_free(two);
     }
     free(rays);
-    truth_free(&ts);
+    test_truth_free(&ts);
     arbor_mesh_free(&m);
 }
 

@@ -46,47 +46,11 @@ void tearDown(void) {}
 
 /* ---- rays and their brute-force answers ---- */
 
-/* A ray set and brute force's closest hit of each ray (for an occlusion
- * set, found[i] is whether ray i is occluded: a closest hit in (tmin, tmax)
- * exists exactly when some hit does). */
-typedef struct {
-    arbor_ray *rays;
-    size_t n;
-    arbor_hit *hit;
-    bool *found;
-} truth_set;
-
 static void *xmalloc(size_t size)
 {
     void *p = malloc(size ? size : 1);
     TEST_ASSERT_NOT_NULL_MESSAGE(p, "out of memory");
     return p;
-}
-
-/* Takes ownership of rays. */
-static void truth_compute(truth_set *ts, const arbor_mesh *m, arbor_ray *rays, size_t n)
-{
-    ts->rays = rays;
-    ts->n = n;
-    ts->hit = xmalloc(n * sizeof *ts->hit);
-    ts->found = xmalloc(n * sizeof *ts->found);
-    arbor_brute_intersect_many(NULL, m, rays, n, ts->hit, ts->found, 0);
-}
-
-static void truth_free(truth_set *ts)
-{
-    free(ts->rays);
-    free(ts->hit);
-    free(ts->found);
-    memset(ts, 0, sizeof *ts);
-}
-
-static size_t truth_hits(const truth_set *ts)
-{
-    size_t hits = 0;
-    for (size_t i = 0; i < ts->n; i++)
-        hits += ts->found[i];
-    return hits;
 }
 
 /* ---- the sample of the protocol's rays ---- */
@@ -139,7 +103,7 @@ static size_t *sample_pixels(const arbor_mesh *m, size_t want, size_t *n)
 /* The benchmark's rays for the sampled pixels, with brute force's answers:
  * primary and diffuse closest hits, shadow occlusion. */
 typedef struct {
-    truth_set primary, diffuse, shadow;
+    test_truth primary, diffuse, shadow;
 } scaled_truth;
 
 /* The scaled model's rays, brute force's unscaled answers carried over.
@@ -148,7 +112,7 @@ typedef struct {
  * keep their directions, and so their hits are the same triangles at t
  * times s; shadow rays (t in (0, 1) along the vector to the light) have
  * that vector times s and the same t. Takes ownership of rays. */
-static void carry_over(truth_set *ts, arbor_ray *rays, size_t n, const truth_set *unscaled, float s, const char *what)
+static void carry_over(test_truth *ts, arbor_ray *rays, size_t n, const test_truth *unscaled, float s, const char *what)
 {
     char msg[256];
     TEST_ASSERT_EQUAL_UINT64_MESSAGE(unscaled->n, n, what);
@@ -172,14 +136,14 @@ static void carry_over(truth_set *ts, arbor_ray *rays, size_t n, const truth_set
 
 /* Brute force over the scaled model gives every `stride`-th ray of the set
  * exactly the answer carried over. */
-static void brute_agrees(const arbor_mesh *m, const truth_set *ts, size_t stride, const char *what)
+static void brute_agrees(const arbor_mesh *m, const test_truth *ts, size_t stride, const char *what)
 {
     size_t n = (ts->n + stride - 1) / stride;
     arbor_ray *rays = xmalloc(n * sizeof *rays);
     for (size_t i = 0; i < n; i++)
         rays[i] = ts->rays[i * stride];
-    truth_set brute;
-    truth_compute(&brute, m, rays, n);
+    test_truth brute;
+    test_truth_compute(&brute, m, rays, n);
     for (size_t i = 0; i < n; i++) {
         const arbor_hit *want = &ts->hit[i * stride], *got = &brute.hit[i];
         char msg[256];
@@ -190,7 +154,7 @@ static void brute_agrees(const arbor_mesh *m, const truth_set *ts, size_t stride
                                      (!brute.found[i] || (got->tri == want->tri && got->t == want->t)),
                                  msg);
     }
-    truth_free(&brute);
+    test_truth_free(&brute);
 }
 
 /* The benchmark's rays for the sampled pixels of m and their answers. With
@@ -209,7 +173,7 @@ static void scaled_truth_compute(scaled_truth *st, const arbor_mesh *m, const si
         primary[i] = sets.primary[pixels[i]];
     snprintf(what, sizeof what, "x %g primary", (double)s);
     if (unscaled == NULL)
-        truth_compute(&st->primary, m, primary, npixels);
+        test_truth_compute(&st->primary, m, primary, npixels);
     else
         carry_over(&st->primary, primary, npixels, &unscaled->primary, s, what);
     /* the secondary rays of the sampled pixels' hits, as the benchmark makes
@@ -224,10 +188,10 @@ static void scaled_truth_compute(scaled_truth *st, const arbor_mesh *m, const si
     TEST_ASSERT_TRUE_MESSAGE(arbor_raysets_secondary(m, &sets, hits, found, SECONDARY_SEED, &e), e.msg);
     free(hits);
     free(found);
-    TEST_ASSERT_EQUAL_UINT64(truth_hits(&st->primary), sets.ndiffuse);
+    TEST_ASSERT_EQUAL_UINT64(test_truth_hits(&st->primary), sets.ndiffuse);
     if (unscaled == NULL) {
-        truth_compute(&st->diffuse, m, sets.diffuse, sets.ndiffuse);
-        truth_compute(&st->shadow, m, sets.shadow, sets.nshadow);
+        test_truth_compute(&st->diffuse, m, sets.diffuse, sets.ndiffuse);
+        test_truth_compute(&st->shadow, m, sets.shadow, sets.nshadow);
     } else {
         snprintf(what, sizeof what, "x %g diffuse", (double)s);
         carry_over(&st->diffuse, sets.diffuse, sets.ndiffuse, &unscaled->diffuse, s, what);
@@ -237,7 +201,7 @@ static void scaled_truth_compute(scaled_truth *st, const arbor_mesh *m, const si
     sets.diffuse = sets.shadow = NULL; /* now the truth sets' */
     arbor_raysets_free(&sets);
     if (unscaled != NULL) {
-        const truth_set *scaled_sets[] = {&st->primary, &st->diffuse, &st->shadow};
+        const test_truth *scaled_sets[] = {&st->primary, &st->diffuse, &st->shadow};
         const char *names[] = {"primary", "diffuse", "shadow"};
         for (int i = 0; i < 3; i++) {
             snprintf(what, sizeof what, "x %g %s", (double)s, names[i]);
@@ -248,9 +212,9 @@ static void scaled_truth_compute(scaled_truth *st, const arbor_mesh *m, const si
 
 static void scaled_truth_free(scaled_truth *st)
 {
-    truth_free(&st->primary);
-    truth_free(&st->diffuse);
-    truth_free(&st->shadow);
+    test_truth_free(&st->primary);
+    test_truth_free(&st->diffuse);
+    test_truth_free(&st->shadow);
 }
 
 /* ---- every tree against the truth ---- */
@@ -271,7 +235,7 @@ typedef enum {
  * triangle, same t, tmax shrunk to it), and any-hit agrees with it.
  * CHECK_AT_TMAX: any-hit to the ulp: a ray cut at its closest hit is not
  * occluded (t is open at tmax), one cut a float beyond it is. */
-static void check_set(const arbor_accel *tree, const char *set, const truth_set *ts, check_kind kind,
+static void check_set(const arbor_accel *tree, const char *set, const test_truth *ts, check_kind kind,
                       mismatches *mm)
 {
     for (size_t i = 0; i < ts->n; i++) {
@@ -371,7 +335,7 @@ static void check_trees_at_scale(const char *model, const scale_plan *plan, cons
             tree_name(what, sizeof what, model, plan->scale, k, b);
             arbor_accel *tree = build_tree(m, (arbor_accel_kind)k, (arbor_builder)b, plan->validate, what);
             mismatches mm = {0, 0, ""};
-            const truth_set *sets[] = {&st->primary, &st->diffuse, &st->shadow};
+            const test_truth *sets[] = {&st->primary, &st->diffuse, &st->shadow};
             const char *names[] = {"primary", "diffuse", "shadow"};
             for (int i = 0; i < 3; i++) {
                 check_set(tree, names[i], sets[i], CHECK_CLOSEST, &mm);
@@ -411,9 +375,9 @@ static void check_model_at_scales(const char *file, size_t rays, size_t brute_st
     scaled_truth unscaled;
     scaled_truth_compute(&unscaled, &m, pixels, npixels, NULL, 1.0f, 1);
     /* rays that mostly miss, or secondary rays never hitting, would prove little */
-    TEST_ASSERT_TRUE_MESSAGE(truth_hits(&unscaled.primary) > npixels / 4, "too few sampled rays hit the model");
-    TEST_ASSERT_TRUE_MESSAGE(truth_hits(&unscaled.diffuse) > 0, "no diffuse ray hit");
-    TEST_ASSERT_TRUE_MESSAGE(truth_hits(&unscaled.shadow) > 0, "no shadow ray blocked");
+    TEST_ASSERT_TRUE_MESSAGE(test_truth_hits(&unscaled.primary) > npixels / 4, "too few sampled rays hit the model");
+    TEST_ASSERT_TRUE_MESSAGE(test_truth_hits(&unscaled.diffuse) > 0, "no diffuse ray hit");
+    TEST_ASSERT_TRUE_MESSAGE(test_truth_hits(&unscaled.shadow) > 0, "no shadow ray blocked");
 
     for (size_t i = 0; i < nplans; i++) {
         const scale_plan *plan = &plans[i];
@@ -598,7 +562,7 @@ static bool nearest_lowest(const arbor_mesh *m, const arbor_ray *r, arbor_hit *b
 
 /* A tie mesh, its rays and their nearest hits, lowest index first: brute
  * force must give exactly those. */
-static void tie_truth(arbor_mesh *m, truth_set *ts, const char *name, bool tilted)
+static void tie_truth(arbor_mesh *m, test_truth *ts, const char *name, bool tilted)
 {
     tie_mesh(m, tilted, 5);
     ts->rays = tie_rays(m, 4000, 6, &ts->n);
@@ -633,7 +597,7 @@ static void check_trees_on_grids(check_kind kind)
     for (int tilted = 0; tilted < 2; tilted++) {
         const char *name = tilted ? "tilted grid" : "flat grid";
         arbor_mesh m;
-        truth_set ts;
+        test_truth ts;
         tie_truth(&m, &ts, name, tilted);
         for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
             for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
@@ -645,7 +609,7 @@ static void check_trees_on_grids(check_kind kind)
                 arbor_accel_free(tree);
                 note_tree(&tf, what, &mm, ts.n);
             }
-        truth_free(&ts);
+        test_truth_free(&ts);
         arbor_mesh_free(&m);
     }
     TEST_ASSERT_EQUAL_UINT64_MESSAGE(0, tf.failed, tf.msg);
