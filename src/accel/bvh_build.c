@@ -491,6 +491,16 @@ static float sah_sweep(const build_box *box, const uint32_t *count, uint32_t nbi
     return best;
 }
 
+/* Whether a node of n triangles and surface `area` stays a leaf: its best
+ * split, whose children's A N add up to `split_an`, costs no less than
+ * testing all its triangles, and it is small enough to be a leaf. */
+static bool sah_stays_leaf(const bvh_builder *B, float area, double split_an, uint32_t n)
+{
+    double split_cost = (double)B->cost_traverse * area + (double)B->cost_intersect * split_an;
+    double leaf_cost = (double)B->cost_intersect * area * (double)n;
+    return !(split_cost < leaf_cost) && n <= B->max_leaf;
+}
+
 /* Binned SAH over the three axes of prims[b, e), whose box has area `area`
  * and whose centroids span cbox (not a single point). Returns whether
  * splitting at the cheapest plane beats a leaf, by the cost model
@@ -531,9 +541,7 @@ static bool sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t dep
             rule.limit_bin = _mm_set1_epi32((int)plane + 1);
         }
     }
-    double split_cost = (double)B->cost_traverse * area + (double)B->cost_intersect * best;
-    double leaf_cost = (double)B->cost_intersect * area * (double)n;
-    if (!(split_cost < leaf_cost) && n <= B->max_leaf)
+    if (sah_stays_leaf(B, area, best, n))
         return false;
     if (best == INFINITY) {
         *m = b;
@@ -594,9 +602,7 @@ static bool sah_split_small(const bvh_builder *B, uint32_t b, uint32_t e, float 
             }
         }
     }
-    double split_cost = (double)B->cost_traverse * area + (double)B->cost_intersect * best;
-    double leaf_cost = (double)B->cost_intersect * area * (double)n;
-    if (!(split_cost < leaf_cost) && n <= B->max_leaf)
+    if (sah_stays_leaf(B, area, best, n))
         return false;
     if (best == INFINITY) {
         *m = b;
@@ -622,10 +628,7 @@ static uint32_t sah_split_pair(const bvh_builder *B, uint32_t b, float area, con
 {
     range_bounds(B, b, b + 1, &kids[0]);
     range_bounds(B, b + 1, b + 2, &kids[1]);
-    double split_cost = (double)B->cost_traverse * area +
-                        (double)B->cost_intersect * ((double)box_area(&kids[0].box) + (double)box_area(&kids[1].box));
-    double leaf_cost = (double)B->cost_intersect * area * 2.0;
-    if (!(split_cost < leaf_cost) && B->max_leaf >= 2)
+    if (sah_stays_leaf(B, area, (double)box_area(&kids[0].box) + (double)box_area(&kids[1].box), 2))
         return 0;
     float lo[4], hi[4];
     _mm_storeu_ps(lo, cbox->lo);
