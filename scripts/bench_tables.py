@@ -80,18 +80,23 @@ def rayset_table(rows, threads):
     models = sorted({model_name(r) for r in rows}, key=lambda m: min(r["triangles"] for r in rows
                                                                       if model_name(r) == m))
     out = [f"| model | triangles | tracer | build ms | primary Mrays/s | diffuse Mrays/s | shadow Mrays/s"
-           f" | primary x Embree | shadow x Embree | diffuse x Embree | primary hits | primary tsum |",
-           "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+           f" | primary x Embree | shadow x Embree | diffuse x Embree | build x Embree | bytes/tri"
+           f" | primary hits | primary tsum |",
+           "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for m in models:
+        peer = find(rows, m, "embree", "default")
         for accel, builder in (("bvh", "sah"), ("kd", "sah"), ("embree", "default")):
             r = find(rows, m, accel, builder)
             if r is None or r["threads"] != threads:
                 continue
             tracer = "Embree" if accel == "embree" else f"{accel} {builder}"
+            build_ratio = (r["build_ms"] / peer["build_ms"] if peer and accel != "embree" and peer["build_ms"]
+                           else None)
             out.append(f"| {m} | {r['triangles']:,} | {tracer} | {fmt(r['build_ms'])} | {fmt(r['primary_mrays'])}"
                        f" | {fmt(r['diffuse_mrays'])} | {fmt(r['shadow_mrays'])}"
                        f" | {fmt(r.get('primary_ratio'))} | {fmt(r.get('shadow_ratio'))}"
-                       f" | {fmt(r.get('diffuse_ratio'))} | {r['primary_hits']:,} | {r['primary_tsum']:.6g} |")
+                       f" | {fmt(r.get('diffuse_ratio'))} | {fmt(build_ratio)} | {fmt(r.get('bytes_per_tri'))}"
+                       f" | {r['primary_hits']:,} | {r['primary_tsum']:.6g} |")
     return out
 
 
