@@ -2,114 +2,171 @@
  * bvh_wide.c - the wide tree rays traverse, collapsed from the binary tree
  * the builders make (layouts in bvh_internal.h), and its validator.
  *
- * Collapsing. Every binary subtree of at most BVH_WIDE_LEAF_TRIS triangles
- * becomes one leaf: a pack, tested in one SIMD step, costs about what a
- * single triangle does, so splits that small mostly add box tests. Two
- * packs' worth measured best (bunny, dragon, castle, flowers at 1 thread:
- * against one pack, dragon's shadow rays 2.81 -> 3.19 Mrays/s, bunny's 5.38
- * -> 5.48; three or four packs lose on castle and flowers; measured at
- * BVH_WIDTH 4, and at 8 one pack against two was mixed, see git log). Any other
- * binary inner node becomes a wide node whose children are found by opening,
- * among its current children that are not leaves, the one with the largest
- * surface area (the one rays are likeliest to enter), until there are
- * BVH_WIDTH (the rule of Wald et al., "Getting Rid of Packets", 2008, and
- * Embree's BVH4). A subtree's triangles are contiguous in leaf order, so a
- * leaf is a range of tri_index whatever binary leaves it merges.
+ * Collapsing is driven by the SAH of the wide tree, under the cost model of
+ * bvh_wide_stats.c: a wide node's visit costs COLLAPSE_NODE_COST times its
+ * area, a leaf COLLAPSE_PACK_COST times its area per pack. One pass over the
+ * binary nodes bottom up (children come after their parent in depth-first
+ * order, so a reverse scan meets them first) plans, for each node and each
+ * number of slots k = 1 .. BVH_WIDTH of a wide node its subtree may fill,
+ * the least cost and how it is reached (the dynamic programme of Ylitie et
+ * al., "Efficient Incoherent Ray Traversal on GPUs Through Compressed Wide
+ * BVHs", 2017): in one slot, the cheaper of its subtree as one leaf and a
+ * wide node whose BVH_WIDTH slots its two children share; in k slots, the
+ * best share of k between the children, unless one slot costs less. Only
+ * subtrees of at most COLLAPSE_MAX_LEAF_TRIS triangles may become a leaf, so
+ * leaves stay a few packs long (a binary leaf stays a leaf whatever its
+ * size). Filling then reads the plan top down: a lookup per slot, no search.
+ * A subtree's triangles are contiguous in leaf order, so a leaf is a range
+ * of tri_index whatever binary leaves it merges.
  *
  * One pass, depth first, writes wide nodes and the packs' triangle indices
  * into arrays sized for the worst case, which are then shrunk to fit (a
  * counting pass first cost more than it saved: the walk's cache misses on a
  * large binary tree dominate). The packs' vertices are copied afterwards in a
  * linear pass, in two parallel halves for large meshes. The recursion is at
- * most as deep as the binary tree. The pass is short next to the binary
- * build, so it is not cancellable: bvh_build.c polls the cancel flag before.
+ * most as deep as the binary tree, and so is the wide tree. The plan takes
+ * 48 bytes per binary node while the collapse runs. The pass is short next
+ * to the binary build, so it is not cancellable: the cancel flag is polled
+ * before it.
  */
+#include <assert.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "bvh_internal.h"
 
-#define BVH_WIDE_LEAF_TRIS (2 * BVH_WIDTH)
+/* The cost model's steps (bvh_wide_stats.c counts both as 1). */
+#define COLLAPSE_NODE_COST 1.0f
+#define COLLAPSE_PACK_COST 1.0f
+/* The largest leaf the SAH may choose: four packs keep a leaf's tests short
+ * however flat the cost curve is. */
+#define COLLAPSE_MAX_LEAF_PACKS 4
+#define COLLAPSE_MAX_LEAF_TRIS (COLLAPSE_MAX_LEAF_PACKS * BVH_WIDTH)
+
+/* The collapse's decisions for one binary node, for every number of slots
+ * k = 1 .. BVH_WIDTH of a wide node its subtree may fill. */
+typedef struct {
+    float cost[BVH_WIDTH];      /* [k - 1]: least SAH cost of the subtree in at most k slots (area x steps) */
+    uint8_t split[BVH_WIDTH];   /* [k - 1]: 0 = one slot, else the slots given to the left child */
+    uint8_t node_split;         /* as a wide node: the slots given to the left child */
+    bool leaf;                  /* as one slot: a leaf, else a wide node */
+    uint32_t tris;              /* triangles in the subtree */
+} collapse_plan;
+_Static_assert(BVH_WIDTH < 256, "a number of slots fits a byte");
 
 typedef struct {
     uint32_t first, count;  /* a range of leaf order */
 } tri_range;
 
-/* Whether binary node i becomes a wide leaf: it is a binary leaf, or its
- * subtree holds at most BVH_WIDE_LEAF_TRIS triangles; if so, *r is the range
- * of leaf order it covers. A subtree is the run of nodes from i in
- * depth-first order, and a small one has at most 2 BVH_WIDE_LEAF_TRIS - 1
- * nodes, so this reads a few neighbours of i and stops early for a big one. */
-static bool becomes_leaf(const bvh_tree *t, uint32_t i, tri_range *r)
-{
-    const bvh_node *n = t->nodes;
-    uint32_t pending = 1; /* nodes of the subtree not yet reached */
-    r->count = 0;
-    for (uint32_t j = i; pending > 0; j++) {
-        if (n[j].count == 0) {
-            pending++; /* this node done, its two children to come */
-            continue;
-        }
-        if (r->count == 0)
-            r->first = n[j].index;
-        r->count += n[j].count;
-        pending--;
-        if (j != i && r->count > BVH_WIDE_LEAF_TRIS)
-            return false;
-    }
-    return true;
-}
-
-/* What filling shares: the tree, the next wide node and pack. */
+/* What planning and filling share: the tree, the plan per binary node, the
+ * next wide node and pack. */
 typedef struct {
     bvh_tree *t;
+    collapse_plan *plan;
     uint32_t next_wide, next_pack;
 } wide_ctx;
 
-/* How much opening binary node i is worth: its area, or -1 for a node that
- * becomes a leaf and cannot be opened. */
-static float open_priority(const wide_ctx *x, uint32_t i)
+/* The range of leaf order the subtree of binary node i covers: it starts at
+ * its leftmost leaf, the first leaf from i in depth-first order. */
+static tri_range subtree_range(const wide_ctx *x, uint32_t i)
 {
-    tri_range r;
-    return becomes_leaf(x->t, i, &r) ? -1.0f : aabb_area(bvh_node_box(&x->t->nodes[i]));
+    const bvh_node *n = x->t->nodes;
+    uint32_t j = i;
+    while (n[j].count == 0)
+        j++;
+    tri_range r = {n[j].index, x->plan[i].tris};
+    return r;
+}
+
+/* Plans binary leaf i: one wide leaf, whatever the slots. */
+static void plan_binary_leaf(collapse_plan *p, const bvh_node *n)
+{
+    p->tris = n->count;
+    p->leaf = true;
+    p->node_split = 0;
+    float cost = aabb_area(bvh_node_box(n)) * COLLAPSE_PACK_COST * (float)bvh_packs_for(n->count);
+    for (int k = 0; k < BVH_WIDTH; k++) {
+        p->cost[k] = cost;
+        p->split[k] = 0;
+    }
+}
+
+/* Plans binary inner node i from its children's plans l and r: in k >= 2
+ * slots, the best share of them between the children, unless one slot
+ * costs less; in one slot, the cheaper of a leaf (if small enough) and a
+ * wide node whose BVH_WIDTH slots the children share. */
+static void plan_inner(collapse_plan *p, const bvh_node *n, const collapse_plan *l, const collapse_plan *r)
+{
+    float shared[BVH_WIDTH + 1];
+    uint8_t left_slots[BVH_WIDTH + 1];
+    for (int k = 2; k <= BVH_WIDTH; k++) {
+        shared[k] = INFINITY;
+        left_slots[k] = 1;
+        for (int j = 1; j < k; j++)
+            if (l->cost[j - 1] + r->cost[k - j - 1] < shared[k]) {
+                shared[k] = l->cost[j - 1] + r->cost[k - j - 1];
+                left_slots[k] = (uint8_t)j;
+            }
+    }
+    float area = aabb_area(bvh_node_box(n));
+    p->tris = l->tris + r->tris;
+    float as_leaf = p->tris <= COLLAPSE_MAX_LEAF_TRIS
+                        ? area * COLLAPSE_PACK_COST * (float)bvh_packs_for(p->tris)
+                        : INFINITY;
+    float as_node = area * COLLAPSE_NODE_COST + shared[BVH_WIDTH];
+    p->leaf = as_leaf <= as_node;
+    p->node_split = left_slots[BVH_WIDTH];
+    p->cost[0] = p->leaf ? as_leaf : as_node;
+    p->split[0] = 0;
+    for (int k = 2; k <= BVH_WIDTH; k++) {
+        bool share = shared[k] < p->cost[0];
+        p->cost[k - 1] = share ? shared[k] : p->cost[0];
+        p->split[k - 1] = share ? left_slots[k] : 0;
+    }
+}
+
+/* Plans every binary node, children before parents (see the top). */
+static void plan_collapse(wide_ctx *x)
+{
+    const bvh_node *nodes = x->t->nodes;
+    for (uint32_t i = x->t->nnodes; i-- > 0;) {
+        if (nodes[i].count > 0)
+            plan_binary_leaf(&x->plan[i], &nodes[i]);
+        else
+            plan_inner(&x->plan[i], &nodes[i], &x->plan[i + 1], &x->plan[nodes[i].index]);
+    }
+}
+
+/* Appends to out[n ..] the binary nodes that fill the at most k slots
+ * planned for the subtree of binary node i; returns the new count. */
+static int planned_slots(const wide_ctx *x, uint32_t i, int k, uint32_t *out, int n)
+{
+    int left = x->plan[i].split[k - 1];
+    assert(k >= 1 && left < k && n + k <= BVH_WIDTH);
+    if (left == 0) {
+        out[n] = i;
+        return n + 1;
+    }
+    n = planned_slots(x, i + 1, left, out, n);
+    return planned_slots(x, x->t->nodes[i].index, k - left, out, n);
 }
 
 /* The binary nodes that become the children of the wide node made from
- * binary inner node i (which does not become a leaf); returns how many. */
+ * binary inner node i; returns how many. */
 static int wide_children(const wide_ctx *x, uint32_t i, uint32_t out[BVH_WIDTH])
 {
-    const bvh_node *nodes = x->t->nodes;
-    float priority[BVH_WIDTH];
-    int n = 2;
-    out[0] = i + 1;
-    out[1] = nodes[i].index;
-    priority[0] = open_priority(x, out[0]);
-    priority[1] = open_priority(x, out[1]);
-    while (n < BVH_WIDTH) {
-        int open = 0;
-        for (int c = 1; c < n; c++)
-            if (priority[c] > priority[open])
-                open = c;
-        if (priority[open] < 0.0f)
-            break;
-        uint32_t inner = out[open];
-        out[open] = inner + 1;
-        out[n] = nodes[inner].index;
-        priority[open] = open_priority(x, out[open]);
-        priority[n] = open_priority(x, out[n]);
-        n++;
-    }
-    return n;
+    int left = x->plan[i].node_split;
+    int n = planned_slots(x, i + 1, left, out, 0);
+    return planned_slots(x, x->t->nodes[i].index, BVH_WIDTH - left, out, n);
 }
 
 /* The children of the root wide node. The root is always a wide node, so
- * traversal always starts at one: a binary tree small enough to be one leaf
- * gets a root with that leaf as its only child. */
+ * traversal always starts at one: a binary tree planned as one leaf gets a
+ * root with that leaf as its only child. */
 static int root_children(const wide_ctx *x, uint32_t out[BVH_WIDTH])
 {
-    tri_range r;
-    if (!becomes_leaf(x->t, 0, &r))
+    if (!x->plan[0].leaf)
         return wide_children(x, 0, out);
     out[0] = 0;
     return 1;
@@ -179,9 +236,8 @@ static uint64_t fill_node(wide_ctx *x, const uint32_t *kids, int n)
 /* Writes the subtree of binary node i; returns the reference to it. */
 static uint64_t fill_subtree(wide_ctx *x, uint32_t i)
 {
-    tri_range r;
-    if (becomes_leaf(x->t, i, &r))
-        return fill_leaf(x, r);
+    if (x->plan[i].leaf)
+        return fill_leaf(x, subtree_range(x, i));
     uint32_t kids[BVH_WIDTH];
     int n = wide_children(x, i, kids);
     return fill_node(x, kids, n);
@@ -196,11 +252,12 @@ bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool paral
      * leaves are at most the binary leaves. */
     uint32_t leaves = (t->nnodes + 1) / 2;
     size_t max_wide = leaves > 1 ? leaves - 1 : 1, max_packs = leaves + t->ntris / BVH_WIDTH;
-    wide_ctx x = {t, 0, 0};
+    wide_ctx x = {t, malloc(t->nnodes * sizeof *x.plan), 0, 0};
     t->wide = bvh_alloc_aligned(max_wide * sizeof *t->wide);
     t->packs = bvh_alloc_aligned(max_packs * sizeof *t->packs);
     t->pack_tri = malloc(BVH_WIDTH * max_packs * sizeof *t->pack_tri);
-    if (t->wide != NULL && t->packs != NULL && t->pack_tri != NULL) {
+    if (x.plan != NULL && t->wide != NULL && t->packs != NULL && t->pack_tri != NULL) {
+        plan_collapse(&x);
         uint32_t kids[BVH_WIDTH];
         fill_node(&x, kids, root_children(&x, kids));
         t->nwide = x.next_wide;
@@ -210,7 +267,9 @@ bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool paral
         uint32_t *lanes = realloc(t->pack_tri, BVH_WIDTH * (size_t)t->npacks * sizeof *t->pack_tri);
         t->pack_tri = lanes != NULL ? lanes : t->pack_tri;
     }
-    if (t->wide == NULL || t->packs == NULL || t->pack_tri == NULL)
+    bool planned = x.plan != NULL;
+    free(x.plan);
+    if (!planned || t->wide == NULL || t->packs == NULL || t->pack_tri == NULL)
         return arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory for the wide tree of %u triangles", t->ntris);
     vertex_pass halves[2] = {{t, m, 0, t->npacks / 2}, {t, m, t->npacks / 2, t->npacks}};
     vertex_pass whole = {t, m, 0, t->npacks};
