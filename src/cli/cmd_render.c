@@ -198,7 +198,8 @@ static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_acce
                arbor_render_mode_name(a->mode), a->spp, arbor_pool_threads(pool), r->render_ms,
                (unsigned long long)r->rays, r->mrays_per_s);
         if (r->counted)
-            printf("per primary ray: %.1f node steps (kd: nodes visited; bvh: child boxes tested), %.1f triangles tested\n", r->mean_nodes, r->mean_tris);
+            printf("per primary ray: %.1f nodes visited (inner and leaf, of the tree rays traverse), %.1f triangles tested\n",
+                   r->mean_nodes, r->mean_tris);
         if (a->mode == ARBOR_MODE_HEAT)
             printf("heat scale: %.1f (99th percentile; max %.1f, mean %.1f nodes + triangles per pixel)\n",
                    r->heat_scale, r->heat_max, r->heat_mean);
