@@ -164,10 +164,12 @@ SUITES = tests/cli/run.sh tests/http/run.py tests/e2e/run.sh tests/cluster/run.p
 # the browser suite (the HTTP suite drives the same daemon threads). It says
 # so before the summary; ASan and the plain run keep everything.
 # The single-threaded suites of the geometry and the builders (loaders, k-d
-# and BVH builds, procedural models, bench figures) have no threads for TSan
-# to watch beyond the pool's, and cost it minutes each, so they run in the
-# plain and ASan runs only.
-TSAN_LEAVE_OUT = $(addprefix $(BUILD)/tests/,test_accel test_kd test_bvh test_bench test_procgen test_load) \
+# and BVH builds, procedural models, bench figures, exactness against brute
+# force, both kernels) have no threads for TSan to watch beyond the pool's,
+# and cost it minutes each (test_exact 10), so they run in the plain and ASan
+# runs only.
+TSAN_LEAVE_OUT = $(addprefix $(BUILD)/tests/,test_accel test_kd test_bvh test_bench test_procgen test_load \
+                   test_exact test_kernels) \
                  tests/e2e/run.sh
 # test_alloc_fail runs under ASan, whose allocator its own forwards to, so
 # LeakSanitizer sees every block a failed operation left behind. TSan leaves
