@@ -146,8 +146,9 @@ static void plan_collapse(wide_ctx *x)
  * planned for the subtree of binary node i; returns the new count. */
 static int planned_slots(const wide_ctx *x, uint32_t i, int k, uint32_t *out, int n)
 {
+    assert(k >= 1 && n + k <= BVH_WIDTH);
     int left = x->plan[i].split[k - 1];
-    assert(k >= 1 && left < k && n + k <= BVH_WIDTH);
+    assert(left < k);
     if (left == 0) {
         out[n] = i;
         return n + 1;
