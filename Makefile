@@ -166,8 +166,8 @@ SUITES = tests/cli/run.sh tests/http/run.py tests/e2e/run.sh tests/cluster/run.p
 # The single-threaded suites of the geometry and the builders (loaders, k-d
 # and BVH builds, procedural models, bench figures, exactness against brute
 # force, both kernels) have no threads for TSan to watch beyond the pool's,
-# and cost it minutes each (test_exact 10), so they run in the plain and ASan
-# runs only.
+# and cost it minutes each (test_exact about 10), so they run in the plain
+# and ASan runs only.
 TSAN_LEAVE_OUT = $(addprefix $(BUILD)/tests/,test_accel test_kd test_bvh test_bench test_procgen test_load \
                    test_exact test_kernels) \
                  tests/e2e/run.sh

@@ -33,7 +33,7 @@ static void usage(FILE *out)
             "  --threads N             render and build threads; 0 = one per core (default 0)\n"
             "  --heat-scale S          heat mode: the cost at the top of the colour scale (default: the\n"
             "                          frame's 99th percentile)\n"
-            "  --counts                also report node steps and triangle tests per primary ray\n"
+            "  --counts                also report nodes visited and triangles tested per primary ray\n"
             "  --url URL               render on the daemon (or load balancer) at URL; --model names a\n"
             "                          model it serves\n"
             "  --split K               with --url: ask for K horizontal strips at once (default 1)\n"
