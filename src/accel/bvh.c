@@ -24,7 +24,6 @@ static void bvh_tree_free(bvh_tree *t)
     free(t->tri_index);
     free(t->wide);
     free(t->packs);
-    free(t->pack_tri);
     free(t);
 }
 
@@ -32,8 +31,7 @@ static void bvh_tree_free(bvh_tree *t)
 static uint64_t bvh_tree_bytes(const bvh_tree *t)
 {
     return (uint64_t)t->nnodes * sizeof(bvh_node) + (t->tri_index != NULL ? (uint64_t)t->ntris * sizeof(uint32_t) : 0) +
-           (uint64_t)t->nwide * sizeof(bvh_wide_node) +
-           (uint64_t)t->npacks * (sizeof(bvh_tri_pack) + BVH_WIDTH * sizeof(uint32_t));
+           (uint64_t)t->nwide * sizeof(bvh_wide_node) + (uint64_t)t->npacks * sizeof(bvh_tri_pack);
 }
 
 /* Builds the binary tree, collapses it into the wide tree rays traverse,
@@ -220,7 +218,7 @@ void bvh_walk(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user
     if (t->nwide == 0)
         return;
     struct {
-        uint64_t ref;
+        uint32_t ref;
         arbor_aabb box;
         uint32_t depth;
     } stack[BVH_MAX_DEPTH * (BVH_WIDTH - 1) + 1];
@@ -230,10 +228,10 @@ void bvh_walk(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user
     stack[sp++].depth = 0;
     while (sp > 0) {
         sp--;
-        uint64_t ref = stack[sp].ref;
+        uint32_t ref = stack[sp].ref;
         uint32_t depth = stack[sp].depth;
         bool leaf = bvh_ref_is_leaf(ref);
-        arbor_node_info info = {stack[sp].box, depth, leaf, leaf ? bvh_ref_tris(ref) : 0, 0};
+        arbor_node_info info = {stack[sp].box, depth, leaf, leaf ? bvh_leaf_tris(t, bvh_ref_index(ref)) : 0, 0};
         if (!fn(user, &info))
             return;
         if (leaf || depth == max_depth)

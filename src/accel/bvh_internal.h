@@ -23,15 +23,23 @@
  * test checks at once, with leaf triangles in packs of BVH_WIDTH that one
  * SIMD triangle test checks at once. A wide node is 32 BVH_WIDTH bytes
  * (BVH_WIDTH / 2 cache lines): its children's boxes as six rows of
- * BVH_WIDTH lanes, and a 64-bit reference per child,
+ * BVH_WIDTH lanes, a 32-bit reference per child,
  *
  *     inner child: the wide node's index (never 0, the root)
- *     leaf child:  BVH_REF_LEAF | triangles << 32 | first pack
+ *     leaf child:  BVH_REF_LEAF | first pack
  *     empty slot:  0, with an empty box (lo +inf, hi -inf) that no ray enters
  *
- * A leaf's triangles fill its packs in order; the last pack's unused lanes
- * hold NaN vertices (no ray hits them) and the triangle index UINT32_MAX.
- * Wide node 0 is the root; wide nodes and packs are in depth-first order.
+ * and 32 bytes unused, which keep a node whole cache lines. (A visiting
+ * order per ray octant there measured slower than sorting the children
+ * entered by distance: docs/BENCH.md.)
+ *
+ * A pack is BVH_WIDTH triangles' vertices and their mesh indices, 5 cache
+ * lines. A leaf's triangles fill its packs in order; the last pack's unused
+ * lanes hold NaN vertices (no ray hits them) and the index BVH_LANE_UNUSED,
+ * and lane 0's index carries BVH_PACK_LAST in the leaf's last pack (lane 0
+ * is never unused, and mesh.c stops a mesh at 2^31 triangles, so indices
+ * leave that bit free). Wide node 0 is the root; wide nodes and packs are
+ * in depth-first order.
  *
  * Invariants (bvh.c's validator checks them all): every mesh triangle is in
  * exactly one leaf of each layout; binary leaves cover [0, ntris) in
@@ -61,18 +69,24 @@ typedef struct {
 _Static_assert(sizeof(bvh_node) == 32, "a node is half a cache line");
 
 #define BVH_WIDTH 8
-#define BVH_REF_LEAF ((uint64_t)1 << 63)
+#define BVH_REF_LEAF ((uint32_t)1 << 31)
+#define BVH_PACK_LAST ((uint32_t)1 << 31)
+#define BVH_LANE_UNUSED UINT32_MAX
 
 typedef struct {
     float box[6][BVH_WIDTH];      /* rows lo x, y, z, hi x, y, z; lane c is child c */
-    uint64_t child[BVH_WIDTH];    /* references, as above */
+    uint32_t child[BVH_WIDTH];    /* references, as above */
+    uint32_t unused[BVH_WIDTH];
 } bvh_wide_node;
 
 _Static_assert(sizeof(bvh_wide_node) == 32 * BVH_WIDTH, "a wide node is whole cache lines");
 
 typedef struct {
     float v[3][3][BVH_WIDTH];     /* vertex a, b, c; axis x, y, z; lane = triangle */
+    uint32_t tri[BVH_WIDTH];      /* mesh triangle per lane; see above */
 } bvh_tri_pack;
+
+_Static_assert(sizeof(bvh_tri_pack) % 64 == 0, "a pack is whole cache lines");
 
 typedef struct {
     bvh_node *nodes;          /* nnodes, depth-first; NULL once dropped */
@@ -84,14 +98,29 @@ typedef struct {
     uint32_t nwide;
     uint32_t npacks;
     bvh_tri_pack *packs;      /* npacks, 64-byte aligned */
-    uint32_t *pack_tri;       /* BVH_WIDTH per pack: mesh triangle of each lane */
 } bvh_tree;
 
-static inline bool bvh_ref_is_leaf(uint64_t ref) { return (ref & BVH_REF_LEAF) != 0; }
-static inline uint32_t bvh_ref_index(uint64_t ref) { return (uint32_t)ref; }
-static inline uint32_t bvh_ref_tris(uint64_t ref) { return (uint32_t)(ref >> 32) & 0x7fffffffu; }
+static inline bool bvh_ref_is_leaf(uint32_t ref) { return (ref & BVH_REF_LEAF) != 0; }
+static inline uint32_t bvh_ref_index(uint32_t ref) { return ref & ~BVH_REF_LEAF; }
 /* The packs a leaf of that many triangles fills. */
 static inline uint32_t bvh_packs_for(uint32_t tris) { return (tris + BVH_WIDTH - 1) / BVH_WIDTH; }
+/* Lane l's mesh triangle, or BVH_LANE_UNUSED. */
+static inline uint32_t bvh_lane_tri(const bvh_tri_pack *p, int l)
+{
+    return p->tri[l] == BVH_LANE_UNUSED ? BVH_LANE_UNUSED : p->tri[l] & ~BVH_PACK_LAST;
+}
+static inline bool bvh_pack_is_last(const bvh_tri_pack *p) { return (p->tri[0] & BVH_PACK_LAST) != 0; }
+/* The triangles of the leaf whose first pack is p0. */
+static inline uint32_t bvh_leaf_tris(const bvh_tree *t, uint32_t p0)
+{
+    uint32_t tris = 0;
+    for (uint32_t p = p0;; p++) {
+        for (int l = 0; l < BVH_WIDTH; l++)
+            tris += t->packs[p].tri[l] != BVH_LANE_UNUSED;
+        if (bvh_pack_is_last(&t->packs[p]))
+            return tris;
+    }
+}
 
 /* Linear passes over all triangles of a mesh this large (making the
  * references, copying the packs' vertices) split into two parallel halves

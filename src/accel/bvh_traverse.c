@@ -118,7 +118,7 @@ BVH_INLINE int wide_boxes(const bvh_wide_node *n, const box_ray *q, vfloat tmax,
 }
 
 typedef struct {
-    uint64_t ref;
+    uint32_t ref;
     float t;
 } stack_entry;
 
@@ -160,7 +160,7 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
     float tmax = r->tmax, limit = r->tmax, box_tmax = box_bound(r->tmax);
     stack_entry stack[BVH_MAX_DEPTH * (BVH_WIDTH - 1)];
     uint32_t sp = 0;
-    uint64_t ref = 0; /* the root */
+    uint32_t ref = 0; /* the root */
     float hit_u = 0.0f, hit_v = 0.0f;
     uint32_t hit_tri = UINT32_MAX; /* UINT32_MAX: no hit yet */
     for (;;) {
@@ -175,7 +175,7 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             if (mask != 0) {
                 int c = __builtin_ctz(mask);
                 mask &= mask - 1;
-                uint64_t near = n->child[c];
+                uint32_t near = n->child[c];
                 float t_near = entry[c];
                 int near_lane = c;
                 const uint32_t base = sp;
@@ -184,11 +184,11 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                 while (mask != 0) {
                     c = __builtin_ctz(mask);
                     mask &= mask - 1;
-                    uint64_t other = n->child[c];
+                    uint32_t other = n->child[c];
                     float t_other = entry[c];
                     int other_lane = c;
                     if (!any_hit && t_other < t_near) {
-                        uint64_t r0 = near;
+                        uint32_t r0 = near;
                         float t0 = t_near;
                         int l0 = near_lane;
                         near = other, t_near = t_other, near_lane = other_lane;
@@ -212,40 +212,43 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                 continue;
             }
         } else {
-            uint32_t tris = bvh_ref_tris(ref), p0 = bvh_ref_index(ref);
-            if (counts) {
+            const bvh_tri_pack *pack = &t->packs[bvh_ref_index(ref)];
+            if (counts)
                 counts->nodes++;
-                counts->tris += tris;
-            }
             if (visit)
-                visit_node(visit, user, &at, true, tris, 1);
+                visit_node(visit, user, &at, true, bvh_leaf_tris(t, bvh_ref_index(ref)), 1);
             if (!tq_ready) {
                 tri_ray_setup(&tq, r);
                 tq_ready = true;
             }
-            for (uint32_t p = p0; p < p0 + bvh_packs_for(tris); p++) {
+            for (;; pack++) {
                 tri_pack_hits ph;
-                int hits = tri_pack_test(&t->packs[p].v[0][0][0], &tq, vset1(limit), &ph);
-                if (hits == 0)
-                    continue;
-                if (any_hit)
+                int hits = tri_pack_test(&pack->v[0][0][0], &tq, vset1(limit), &ph);
+                if (counts)
+                    for (int l = 0; l < BVH_WIDTH; l++)
+                        counts->tris += pack->tri[l] != BVH_LANE_UNUSED;
+                if (any_hit && hits != 0)
                     return true;
-                /* the nearest lane, the lowest triangle index on a tie; a
-                 * lane at t == tmax wins only with a lower index than the
-                 * best's (the test admits t up to limit for that) */
-                for (; hits != 0; hits &= hits - 1) {
-                    int l = __builtin_ctz(hits);
-                    float tl = ph.t[l];
-                    uint32_t tri = t->pack_tri[BVH_WIDTH * p + (uint32_t)l];
-                    if (tl < tmax || (tl == tmax && tri < hit_tri)) {
-                        tmax = tl;
-                        hit_tri = tri;
-                        hit_u = ph.v[l] * ph.inv[l];
-                        hit_v = ph.w[l] * ph.inv[l];
+                if (hits != 0) {
+                    /* the nearest lane, the lowest triangle index on a tie;
+                     * a lane at t == tmax wins only with a lower index than
+                     * the best's (the test admits t up to limit for that) */
+                    for (; hits != 0; hits &= hits - 1) {
+                        int l = __builtin_ctz(hits);
+                        float tl = ph.t[l];
+                        uint32_t tri = pack->tri[l] & ~BVH_PACK_LAST;
+                        if (tl < tmax || (tl == tmax && tri < hit_tri)) {
+                            tmax = tl;
+                            hit_tri = tri;
+                            hit_u = ph.v[l] * ph.inv[l];
+                            hit_v = ph.w[l] * ph.inv[l];
+                        }
                     }
+                    limit = nextafterf(tmax, INFINITY);
+                    box_tmax = box_bound(tmax);
                 }
-                limit = nextafterf(tmax, INFINITY);
-                box_tmax = box_bound(tmax);
+                if (bvh_pack_is_last(pack))
+                    break;
             }
         }
         /* next: the most recently pushed entry that may still hold a closer hit */

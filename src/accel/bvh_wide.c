@@ -177,16 +177,18 @@ static int root_children(const wide_ctx *x, uint32_t out[BVH_WIDTH])
     return 1;
 }
 
-/* Assigns a leaf its packs and their lanes' triangles (UINT32_MAX for the
- * unused lanes); fill_vertices copies the vertices afterwards. */
-static uint64_t fill_leaf(wide_ctx *x, tri_range r)
+/* Assigns a leaf its packs and their lanes' triangles (BVH_LANE_UNUSED
+ * for the unused lanes, BVH_PACK_LAST on the last pack's lane 0);
+ * fill_vertices copies the vertices afterwards. */
+static uint32_t fill_leaf(wide_ctx *x, tri_range r)
 {
-    uint32_t pack0 = x->next_pack;
-    x->next_pack += bvh_packs_for(r.count);
-    uint32_t *lanes = x->t->pack_tri + BVH_WIDTH * (size_t)pack0;
-    for (uint32_t slot = 0; slot < BVH_WIDTH * bvh_packs_for(r.count); slot++)
-        lanes[slot] = slot < r.count ? x->t->tri_index[r.first + slot] : UINT32_MAX;
-    return BVH_REF_LEAF | (uint64_t)r.count << 32 | pack0;
+    uint32_t pack0 = x->next_pack, npacks = bvh_packs_for(r.count);
+    x->next_pack += npacks;
+    for (uint32_t slot = 0; slot < BVH_WIDTH * npacks; slot++)
+        x->t->packs[pack0 + slot / BVH_WIDTH].tri[slot % BVH_WIDTH] =
+            slot < r.count ? x->t->tri_index[r.first + slot] : BVH_LANE_UNUSED;
+    x->t->packs[pack0 + npacks - 1].tri[0] |= BVH_PACK_LAST;
+    return BVH_REF_LEAF | pack0;
 }
 
 /* The vertices of packs [b, e), from the mesh, NaN in unused lanes: a
@@ -204,7 +206,7 @@ static void fill_vertices(void *passes, uint32_t half)
     for (uint32_t p = vp->b; p < vp->e; p++) {
         bvh_tri_pack *pack = &vp->t->packs[p];
         for (int lane = 0; lane < BVH_WIDTH; lane++) {
-            uint32_t tri = vp->t->pack_tri[BVH_WIDTH * (size_t)p + (size_t)lane];
+            uint32_t tri = bvh_lane_tri(pack, lane);
             arbor_vec3 v[3] = {{NAN, NAN, NAN}, {NAN, NAN, NAN}, {NAN, NAN, NAN}};
             if (tri != UINT32_MAX)
                 arbor_mesh_tri(vp->m, tri, &v[0], &v[1], &v[2]);
@@ -217,11 +219,11 @@ static void fill_vertices(void *passes, uint32_t half)
     }
 }
 
-static uint64_t fill_subtree(wide_ctx *x, uint32_t i);
+static uint32_t fill_subtree(wide_ctx *x, uint32_t i);
 
 /* Writes a wide node whose children are binary nodes kids[0, n), then their
  * subtrees; returns its reference. */
-static uint64_t fill_node(wide_ctx *x, const uint32_t *kids, int n)
+static uint32_t fill_node(wide_ctx *x, const uint32_t *kids, int n)
 {
     uint32_t w = x->next_wide++;
     bvh_wide_node *node = &x->t->wide[w];
@@ -232,6 +234,7 @@ static uint64_t fill_node(wide_ctx *x, const uint32_t *kids, int n)
             node->box[row + 3][c] = k ? k->bounds[row + 3] : -INFINITY;
         }
         node->child[c] = 0;
+        node->unused[c] = 0;
     }
     for (int c = 0; c < n; c++)
         node->child[c] = fill_subtree(x, kids[c]);
@@ -239,7 +242,7 @@ static uint64_t fill_node(wide_ctx *x, const uint32_t *kids, int n)
 }
 
 /* Writes the subtree of binary node i; returns the reference to it. */
-static uint64_t fill_subtree(wide_ctx *x, uint32_t i)
+static uint32_t fill_subtree(wide_ctx *x, uint32_t i)
 {
     if (x->plan[i].leaf)
         return fill_leaf(x, subtree_range(x, i));
@@ -252,6 +255,8 @@ bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool paral
 {
     if (t->nnodes == 0)
         return true;
+    /* the references' and packs' flag bits (bvh_internal.h) */
+    assert(t->ntris <= (uint32_t)1 << 31);
     /* Worst cases: a wide node per binary inner node (at least the root),
      * and per wide leaf one pack more than its triangles fill, where wide
      * leaves are at most the binary leaves. */
@@ -260,8 +265,7 @@ bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool paral
     wide_ctx x = {t, malloc(t->nnodes * sizeof *x.plan), 0, 0};
     t->wide = bvh_alloc_aligned(max_wide * sizeof *t->wide);
     t->packs = bvh_alloc_aligned(max_packs * sizeof *t->packs);
-    t->pack_tri = malloc(BVH_WIDTH * max_packs * sizeof *t->pack_tri);
-    if (x.plan != NULL && t->wide != NULL && t->packs != NULL && t->pack_tri != NULL) {
+    if (x.plan != NULL && t->wide != NULL && t->packs != NULL) {
         plan_collapse(&x);
         uint32_t kids[BVH_WIDTH];
         fill_node(&x, kids, root_children(&x, kids));
@@ -269,12 +273,10 @@ bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool paral
         t->npacks = x.next_pack;
         t->wide = bvh_shrink_aligned(t->wide, t->nwide * sizeof *t->wide);
         t->packs = bvh_shrink_aligned(t->packs, t->npacks * sizeof *t->packs);
-        uint32_t *lanes = realloc(t->pack_tri, BVH_WIDTH * (size_t)t->npacks * sizeof *t->pack_tri);
-        t->pack_tri = lanes != NULL ? lanes : t->pack_tri;
     }
     bool planned = x.plan != NULL;
     free(x.plan);
-    if (!planned || t->wide == NULL || t->packs == NULL || t->pack_tri == NULL)
+    if (!planned || t->wide == NULL || t->packs == NULL)
         return arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory for the wide tree of %u triangles", t->ntris);
     vertex_pass halves[2] = {{t, m, 0, t->npacks / 2}, {t, m, t->npacks / 2, t->npacks}};
     vertex_pass whole = {t, m, 0, t->npacks};
@@ -295,13 +297,13 @@ typedef struct {
 static bool check_pack_lane(wide_check *k, uint32_t p, int lane, bool used, const arbor_aabb *box)
 {
     const bvh_tri_pack *pack = &k->t->packs[p];
-    uint32_t tri = k->t->pack_tri[BVH_WIDTH * (size_t)p + (size_t)lane];
+    uint32_t tri = bvh_lane_tri(pack, lane);
     arbor_vec3 v[3];
     for (int j = 0; j < 3; j++)
         v[j] = vec3(pack->v[j][0][lane], pack->v[j][1][lane], pack->v[j][2][lane]);
     if (!used) {
         for (int j = 0; j < 3; j++)
-            if (!isnan(v[j].x) || !isnan(v[j].y) || !isnan(v[j].z) || tri != UINT32_MAX)
+            if (!isnan(v[j].x) || !isnan(v[j].y) || !isnan(v[j].z) || tri != BVH_LANE_UNUSED)
                 return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh pack %u lane %d: an unused lane is not NaN padding",
                                   p, lane);
         return true;
@@ -323,18 +325,38 @@ static bool check_pack_lane(wide_check *k, uint32_t p, int lane, bool used, cons
     return true;
 }
 
-static bool check_wide_leaf(wide_check *k, uint64_t ref, const arbor_aabb *box)
+/* A leaf's packs: from its first, the next in depth-first order, up to the
+ * one marked last; every pack but the last full, lane 0 always used, the
+ * used lanes first. */
+static bool check_wide_leaf(wide_check *k, uint32_t ref, const arbor_aabb *box)
 {
-    uint32_t tris = bvh_ref_tris(ref), pack0 = bvh_ref_index(ref);
-    if (tris == 0 || pack0 != k->next_pack || bvh_packs_for(tris) > k->t->npacks - pack0)
-        return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh wide leaf: %u triangles from pack %u (next is %u of %u)", tris,
-                          pack0, k->next_pack, k->t->npacks);
-    k->next_pack += bvh_packs_for(tris);
-    for (uint32_t p = pack0; p < k->next_pack; p++)
-        for (int lane = 0; lane < BVH_WIDTH; lane++)
-            if (!check_pack_lane(k, p, lane, (p - pack0) * BVH_WIDTH + (uint32_t)lane < tris, box))
+    uint32_t pack0 = bvh_ref_index(ref);
+    if (pack0 != k->next_pack)
+        return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh wide leaf: first pack %u, expected %u of %u", pack0,
+                          k->next_pack, k->t->npacks);
+    for (uint32_t p = pack0;; p++) {
+        if (p >= k->t->npacks)
+            return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh wide leaf from pack %u: no last pack before the end (%u)",
+                              pack0, k->t->npacks);
+        const bvh_tri_pack *pack = &k->t->packs[p];
+        bool last = bvh_pack_is_last(pack);
+        int used = 0;
+        while (used < BVH_WIDTH && pack->tri[used] != BVH_LANE_UNUSED)
+            used++;
+        if (used == 0 || (used < BVH_WIDTH && !last))
+            return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh pack %u: %d lanes used in a leaf's %s pack", p, used,
+                              last ? "last" : "inner");
+        for (int lane = 0; lane < BVH_WIDTH; lane++) {
+            if (lane > 0 && pack->tri[lane] != BVH_LANE_UNUSED && (pack->tri[lane] & BVH_PACK_LAST))
+                return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh pack %u lane %d: the last mark off lane 0", p, lane);
+            if (!check_pack_lane(k, p, lane, lane < used, box))
                 return false;
-    return true;
+        }
+        if (last) {
+            k->next_pack = p + 1;
+            return true;
+        }
+    }
 }
 
 /* Checks wide node w at depth, inside `parent`, and its subtree. */
@@ -349,7 +371,7 @@ static bool check_wide_node(wide_check *k, uint32_t w, const arbor_aabb *parent,
     const bvh_wide_node *n = &k->t->wide[w];
     for (int c = 0; c < BVH_WIDTH; c++) {
         arbor_aabb box = bvh_lane_box(n, c);
-        uint64_t ref = n->child[c];
+        uint32_t ref = n->child[c];
         if (ref == 0) {
             if (box.lo.x != INFINITY || box.lo.y != INFINITY || box.lo.z != INFINITY || box.hi.x != -INFINITY ||
                 box.hi.y != -INFINITY || box.hi.z != -INFINITY)

@@ -38,14 +38,14 @@ static void add_node(wide_sums *x, uint32_t w, arbor_aabb box, uint32_t depth)
         s->max_depth = depth;
     const bvh_wide_node *n = &x->t->wide[w];
     for (int c = 0; c < BVH_WIDTH; c++) {
-        uint64_t ref = n->child[c];
+        uint32_t ref = n->child[c];
         if (ref == 0)
             continue;
         if (!bvh_ref_is_leaf(ref)) {
             add_node(x, bvh_ref_index(ref), bvh_lane_box(n, c), depth + 1);
             continue;
         }
-        uint32_t tris = bvh_ref_tris(ref);
+        uint32_t tris = bvh_leaf_tris(x->t, bvh_ref_index(ref));
         s->nodes++;
         s->leaves++;
         s->refs += tris;
@@ -59,8 +59,7 @@ static void add_node(wide_sums *x, uint32_t w, arbor_aabb box, uint32_t depth)
 void bvh_wide_stats(const bvh_tree *t, arbor_layout_stats *s)
 {
     *s = (arbor_layout_stats){0};
-    s->bytes = (uint64_t)t->nwide * sizeof(bvh_wide_node) +
-               (uint64_t)t->npacks * (sizeof(bvh_tri_pack) + BVH_WIDTH * sizeof(uint32_t));
+    s->bytes = (uint64_t)t->nwide * sizeof(bvh_wide_node) + (uint64_t)t->npacks * sizeof(bvh_tri_pack);
     if (t->nwide == 0)
         return;
     arbor_aabb root = bvh_wide_box(&t->wide[0]);

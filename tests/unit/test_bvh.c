@@ -601,7 +601,16 @@ static void drop_wide_child(bvh_tree *t, arbor_tree_stats *s)
 static void swap_pack_triangle(bvh_tree *t, arbor_tree_stats *s)
 {
     (void)s;
-    t->pack_tri[BVH_WIDTH] = t->pack_tri[0];
+    t->packs[0].tri[1] = t->packs[0].tri[0] & ~BVH_PACK_LAST;
+}
+/* The first leaf's packs run on into the next leaf's. */
+static void clear_last_mark(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    uint32_t p = 0;
+    while (!bvh_pack_is_last(&t->packs[p]))
+        p++;
+    t->packs[p].tri[0] &= ~BVH_PACK_LAST;
 }
 static void misplace_right_child(bvh_tree *t, arbor_tree_stats *s)
 {
@@ -642,7 +651,7 @@ static void test_validator_catches_corruption(void)
     static const corruption corruptions[] = {
         shrink_leaf_box,   grow_child_box,  duplicate_triangle, move_vertex_copy,         misplace_right_child,
         shift_leaf_range,  miscount_nodes,  miscount_depth,     misstate_mean_leaf_depth, misstate_sah_cost,
-        shrink_wide_leaf_box, drop_wide_child, swap_pack_triangle,
+        shrink_wide_leaf_box, drop_wide_child, swap_pack_triangle, clear_last_mark,
     };
     arbor_mesh m;
     test_random_soup(&m, 500, 17);
