@@ -208,7 +208,7 @@ static void fill_vertices(void *passes, uint32_t half)
         for (int lane = 0; lane < BVH_WIDTH; lane++) {
             uint32_t tri = bvh_lane_tri(pack, lane);
             arbor_vec3 v[3] = {{NAN, NAN, NAN}, {NAN, NAN, NAN}, {NAN, NAN, NAN}};
-            if (tri != UINT32_MAX)
+            if (tri != BVH_LANE_UNUSED)
                 arbor_mesh_tri(vp->m, tri, &v[0], &v[1], &v[2]);
             for (int k = 0; k < 3; k++) {
                 pack->v[k][0][lane] = v[k].x;
