@@ -213,10 +213,15 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             }
         } else {
             const bvh_tri_pack *pack = &t->packs[bvh_ref_index(ref)];
-            if (counts)
-                counts->nodes++;
-            if (visit)
-                visit_node(visit, user, &at, true, bvh_leaf_tris(t, bvh_ref_index(ref)), 1);
+            if (counts || visit) {
+                uint32_t tris = bvh_leaf_tris(t, bvh_ref_index(ref));
+                if (counts) {
+                    counts->nodes++;
+                    counts->tris += tris;
+                }
+                if (visit)
+                    visit_node(visit, user, &at, true, tris, 1);
+            }
             if (!tq_ready) {
                 tri_ray_setup(&tq, r);
                 tq_ready = true;
@@ -224,12 +229,9 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             for (;; pack++) {
                 tri_pack_hits ph;
                 int hits = tri_pack_test(&pack->v[0][0][0], &tq, vset1(limit), &ph);
-                if (counts)
-                    for (int l = 0; l < BVH_WIDTH; l++)
-                        counts->tris += pack->tri[l] != BVH_LANE_UNUSED;
-                if (any_hit && hits != 0)
-                    return true;
                 if (hits != 0) {
+                    if (any_hit)
+                        return true;
                     /* the nearest lane, the lowest triangle index on a tie;
                      * a lane at t == tmax wins only with a lower index than
                      * the best's (the test admits t up to limit for that) */
