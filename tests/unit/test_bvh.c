@@ -4,7 +4,8 @@
  * triangle, one plane, tiny with huge, a run that drives the spatial split
  * deep), checked by the validator and against brute force for closest hits,
  * any hits, the counted query, and the (tmin, tmax) interval; statistics
- * worked out by hand; the parallel build equal to the serial one; the
+ * worked out by hand; the SAH build leaving pack-sized nodes unsplit unless
+ * that shrinks their area; the parallel build equal to the serial one; the
  * validator failing on corrupted trees; and the real models galleon, castle
  * and bunny (built on two threads) of ../shared/models.
  *
@@ -509,6 +510,49 @@ static void test_sah_has_lowest_cost(void)
     arbor_mesh_free(&m);
 }
 
+/* The triangles under binary node i. */
+static uint32_t subtree_tris(const bvh_tree *t, uint32_t i)
+{
+    const bvh_node *n = &t->nodes[i];
+    return n->count > 0 ? n->count : subtree_tris(t, i + 1) + subtree_tris(t, n->index);
+}
+
+/* The SAH builder leaves a node that fits one pack of the wide tree
+ * unsplit when its children's areas would add up to at least its own
+ * (sah_pack_stays_leaf): on bunny, every inner node of at most BVH_WIDTH
+ * triangles has children smaller in sum, and the tree stays valid. Some
+ * such nodes are split, so the rule does not simply stop at BVH_WIDTH. */
+static void test_sah_pack_sized_splits_shrink_area(void)
+{
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_TRUE(arbor_load_model(test_shared_model("bunny.obj"), &m, &e));
+    arbor_build_opts o;
+    arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
+    o.threads = 1;
+    accel_run run;
+    TEST_ASSERT_NULL(accel_run_init(&run, &o));
+    arbor_tree_stats s;
+    bvh_tree *t = arbor_bvh_ops.build(&m, &o, &run, &s, &e);
+    TEST_ASSERT_NOT_NULL(t);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(t, &m, &s, &e), e.msg);
+    uint32_t small_splits = 0;
+    for (uint32_t i = 0; i < t->nnodes; i++) {
+        const bvh_node *n = &t->nodes[i];
+        if (n->count > 0 || subtree_tris(t, i) > BVH_WIDTH)
+            continue;
+        small_splits++;
+        double children = aabb_area(bvh_node_box(&t->nodes[i + 1])) + aabb_area(bvh_node_box(&t->nodes[n->index]));
+        char msg[96];
+        snprintf(msg, sizeof msg, "node %u: children's areas %g, its own %g", i, children,
+                 (double)aabb_area(bvh_node_box(n)));
+        TEST_ASSERT_TRUE_MESSAGE(children < aabb_area(bvh_node_box(n)), msg);
+    }
+    TEST_ASSERT_TRUE(small_splits > 0);
+    arbor_bvh_ops.destroy(t);
+    arbor_mesh_free(&m);
+}
+
 /* The build on two threads makes the same tree as on one: same statistics
  * and the same hits, on a soup big enough (over 64k triangles) to fork at
  * the top levels and split the linear passes. */
@@ -712,6 +756,7 @@ int main(void)
     RUN_TEST(test_deep_spatial_run_is_bounded);
     RUN_TEST(test_options);
     RUN_TEST(test_sah_has_lowest_cost);
+    RUN_TEST(test_sah_pack_sized_splits_shrink_area);
     RUN_TEST(test_parallel_build_matches_serial);
     RUN_TEST(test_dropped_binary_tree);
     RUN_TEST(test_validator_catches_corruption);
