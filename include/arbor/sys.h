@@ -1,11 +1,12 @@
 /*
  * sys.h - the few operating-system services arbor's modules share: a
- * monotonic clock, the core count and the identity of a file. Threads come from the pool (pool.h),
- * never from here.
+ * monotonic clock, the core count, the identity of a file and mapping fresh memory in advance.
+ * Threads come from the pool (pool.h), never from here.
  */
 #ifndef ARBOR_SYS_H
 #define ARBOR_SYS_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 /* Milliseconds on a monotonic clock (arbitrary origin). */
@@ -19,5 +20,12 @@ int arbor_cpu_count(void);
  * file. A file replaced by a rename gets a new inode, so daemons sharing a
  * folder tell a new version from the one they loaded by this number. */
 uint64_t arbor_file_stamp(const char *path);
+
+/* Asks the kernel to map now, writable, the whole pages inside [p, p +
+ * bytes) of memory about to be written, rather than one page fault at a
+ * time as the writes first touch them. Only a hint, for large fresh
+ * allocations: a kernel without MADV_POPULATE_WRITE (Linux before 5.14)
+ * leaves the faults as they were, and the memory is the same either way. */
+void arbor_prefault(void *p, size_t bytes);
 
 #endif

@@ -65,6 +65,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "arbor/sys.h"
 #include "bvh_internal.h"
 
 /* Defaults (arbor_build_opts fields that are 0). The simple builders split
@@ -841,6 +842,7 @@ typedef struct {
 static void make_prims(void *passes, uint32_t half)
 {
     prim_pass *p = (prim_pass *)passes + half;
+    arbor_prefault(&p->prims[p->b], (size_t)(p->e - p->b) * sizeof *p->prims); /* fresh memory (bvh_wide.c, fill_packs) */
     p->bounds.box = p->bounds.cbox = box_empty();
     for (uint32_t t = p->b; t < p->e; t++) {
         arbor_vec3 v[3];

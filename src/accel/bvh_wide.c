@@ -19,21 +19,30 @@
  * A subtree's triangles are contiguous in leaf order, so a leaf is a range
  * of tri_index whatever binary leaves it merges.
  *
- * One pass, depth first, writes wide nodes and the packs' triangle indices
- * into arrays sized for the worst case, which are then shrunk to fit (a
- * counting pass first cost more than it saved: the walk's cache misses on a
- * large binary tree dominate). The packs' vertices are copied afterwards in a
- * linear pass, in two parallel halves for large meshes. The recursion is at
- * most as deep as the binary tree, and so is the wide tree. The plan takes
- * 48 bytes per binary node while the collapse runs. The pass is short next
- * to the binary build, so it is not cancellable: the cancel flag is polled
- * before it.
+ * Planning runs in parallel when the build has threads: the binary tree is
+ * cut a few levels down, the subtrees below the cut are planned at once and
+ * the nodes above it after them. Every node gets the plan a serial scan
+ * gives it, so the tree does not depend on the threads. A node's costs are needed only by its
+ * parent, so they live on a stack during the scan, and the plan keeps 16
+ * bytes per binary node while the collapse runs.
+ *
+ * One pass, depth first, then writes the wide nodes and a record per pack
+ * (its range of leaf order) into arrays sized for the worst case, which are
+ * then shrunk to fit (a counting pass first cost more than it saved: the
+ * walk's cache misses on a large binary tree dominate). A linear pass turns
+ * the records into packs, in two parallel halves for large meshes: it is
+ * the first to write the packs' memory, most of the tree's, whose page
+ * faults would otherwise all fall to the serial walk. The recursion is at
+ * most as deep as the binary tree, and so is the wide tree. The collapse
+ * is short next to the binary build, so it is not cancellable: the cancel
+ * flag is polled before it.
  */
 #include <assert.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "arbor/sys.h"
 #include "bvh_internal.h"
 
 /* The cost model's steps. bvh_wide_stats.c counts both as 1; a pack at
@@ -51,7 +60,6 @@
 /* The collapse's decisions for one binary node, for every number of slots
  * k = 1 .. BVH_WIDTH of a wide node its subtree may fill. */
 typedef struct {
-    float cost[BVH_WIDTH];      /* [k - 1]: least SAH cost of the subtree in at most k slots (area x steps) */
     uint8_t split[BVH_WIDTH];   /* [k - 1]: 0 = one slot, else the slots given to the left child */
     uint8_t node_split;         /* as a wide node: the slots given to the left child */
     bool leaf;                  /* as one slot: a leaf, else a wide node */
@@ -59,15 +67,39 @@ typedef struct {
 } collapse_plan;
 _Static_assert(BVH_WIDTH < 256, "a number of slots fits a byte");
 
+/* A subtree's least SAH costs (area x steps) in at most k = 1 .. BVH_WIDTH
+ * slots, [k - 1]. Only a node's parent reads them, so they are not kept
+ * per node but on a stack (see plan_subtree). */
+typedef struct {
+    float cost[BVH_WIDTH];
+} slot_costs;
+
+/* The costs of the subtrees planned and not yet taken by their parents: at
+ * most one per level of the binary tree, and one more. */
+typedef struct {
+    slot_costs at[BVH_MAX_DEPTH + 1];
+    uint32_t n;
+} cost_stack;
+
 typedef struct {
     uint32_t first, count;  /* a range of leaf order */
 } tri_range;
 
+/* What fill_leaf decides for one pack: lanes [0, lanes) hold the
+ * triangles of leaf order [first, first + lanes); last marks a leaf's last
+ * pack. */
+typedef struct {
+    uint32_t first;
+    uint8_t lanes;
+    bool last;
+} pack_record;
+
 /* What planning and filling share: the tree, the plan per binary node, the
- * next wide node and pack. */
+ * record per pack, the next wide node and pack. */
 typedef struct {
     bvh_tree *t;
     collapse_plan *plan;
+    pack_record *records;
     uint32_t next_wide, next_pack;
 } wide_ctx;
 
@@ -83,24 +115,26 @@ static tri_range subtree_range(const wide_ctx *x, uint32_t i)
     return r;
 }
 
-/* Plans binary leaf i: one wide leaf, whatever the slots. */
-static void plan_binary_leaf(collapse_plan *p, const bvh_node *n)
+/* Plans binary leaf n: one wide leaf, whatever the slots. */
+static void plan_binary_leaf(collapse_plan *p, const bvh_node *n, slot_costs *c)
 {
     p->tris = n->count;
     p->leaf = true;
     p->node_split = 0;
     float cost = aabb_area(bvh_node_box(n)) * COLLAPSE_PACK_COST * (float)bvh_packs_for(n->count);
     for (int k = 0; k < BVH_WIDTH; k++) {
-        p->cost[k] = cost;
+        c->cost[k] = cost;
         p->split[k] = 0;
     }
 }
 
-/* Plans binary inner node i from its children's plans l and r: in k >= 2
- * slots, the best share of them between the children, unless one slot
- * costs less; in one slot, the cheaper of a leaf (if small enough) and a
- * wide node whose BVH_WIDTH slots the children share. */
-static void plan_inner(collapse_plan *p, const bvh_node *n, const collapse_plan *l, const collapse_plan *r)
+/* Plans binary inner node n, with l and r its children's plans and costs:
+ * in k >= 2 slots, the best share of them between the children, unless one
+ * slot costs less; in one slot, the cheaper of a leaf (if small enough) and
+ * a wide node whose BVH_WIDTH slots the children share. Sets c to n's
+ * costs. */
+static void plan_inner(collapse_plan *p, const bvh_node *n, const collapse_plan *l, const slot_costs *lc,
+                       const collapse_plan *r, const slot_costs *rc, slot_costs *c)
 {
     float shared[BVH_WIDTH + 1];
     uint8_t left_slots[BVH_WIDTH + 1];
@@ -108,8 +142,8 @@ static void plan_inner(collapse_plan *p, const bvh_node *n, const collapse_plan 
         shared[k] = INFINITY;
         left_slots[k] = 1;
         for (int j = 1; j < k; j++)
-            if (l->cost[j - 1] + r->cost[k - j - 1] < shared[k]) {
-                shared[k] = l->cost[j - 1] + r->cost[k - j - 1];
+            if (lc->cost[j - 1] + rc->cost[k - j - 1] < shared[k]) {
+                shared[k] = lc->cost[j - 1] + rc->cost[k - j - 1];
                 left_slots[k] = (uint8_t)j;
             }
     }
@@ -121,25 +155,113 @@ static void plan_inner(collapse_plan *p, const bvh_node *n, const collapse_plan 
     float as_node = area * COLLAPSE_NODE_COST + shared[BVH_WIDTH];
     p->leaf = as_leaf <= as_node;
     p->node_split = left_slots[BVH_WIDTH];
-    p->cost[0] = p->leaf ? as_leaf : as_node;
+    float one = p->leaf ? as_leaf : as_node;
+    c->cost[0] = one;
     p->split[0] = 0;
     for (int k = 2; k <= BVH_WIDTH; k++) {
-        bool share = shared[k] < p->cost[0];
-        p->cost[k - 1] = share ? shared[k] : p->cost[0];
+        bool share = shared[k] < one;
+        c->cost[k - 1] = share ? shared[k] : one;
         p->split[k - 1] = share ? left_slots[k] : 0;
     }
 }
 
-/* Plans every binary node, children before parents (see the top). */
-static void plan_collapse(wide_ctx *x)
+/* Plans binary node i, whose children (if any) are planned and their costs
+ * on top of s, the left child's topmost; leaves i's costs there instead.
+ * Nodes taken in reverse depth-first order meet the stack this way: the
+ * reverse of "i, left subtree, right subtree" finishes the right child,
+ * then the left, then comes to i. */
+static void plan_node(wide_ctx *x, uint32_t i, cost_stack *s)
+{
+    const bvh_node *n = &x->t->nodes[i];
+    if (n->count > 0) {
+        assert(s->n <= BVH_MAX_DEPTH);
+        plan_binary_leaf(&x->plan[i], n, &s->at[s->n++]);
+        return;
+    }
+    assert(s->n >= 2);
+    slot_costs c;
+    plan_inner(&x->plan[i], n, &x->plan[i + 1], &s->at[s->n - 1], &x->plan[n->index], &s->at[s->n - 2], &c);
+    s->at[s->n - 2] = c;
+    s->n--;
+}
+
+/* One past the last node of binary node i's subtree: its rightmost leaf
+ * is its last node in depth-first order. */
+static uint32_t subtree_end(const bvh_node *nodes, uint32_t i)
+{
+    while (nodes[i].count == 0)
+        i = nodes[i].index;
+    return i + 1;
+}
+
+/* The subtree of one binary node, planned on its own: nodes [b, e) and
+ * their costs. */
+typedef struct {
+    wide_ctx *x;
+    uint32_t b, e;
+    slot_costs cost;
+} plan_part;
+
+/* Part number `i` of the array `parts`. */
+static void plan_part_run(void *parts, uint32_t i)
+{
+    plan_part *p = (plan_part *)parts + i;
+    cost_stack s;
+    s.n = 0;
+    for (uint32_t j = p->e; j-- > p->b;)
+        plan_node(p->x, j, &s);
+    assert(s.n == 1);
+    p->cost = s.at[0];
+}
+
+/* A parallel plan cuts the binary tree at this depth: the subtrees below
+ * (at most 2^depth, enough to even out the threads' shares) are planned at
+ * once, then the few nodes above. */
+#define COLLAPSE_PLAN_CUT_DEPTH 4
+#define COLLAPSE_PLAN_CUT_MAX (1u << COLLAPSE_PLAN_CUT_DEPTH)
+
+/* The nodes above the cut, depth first, and the subtrees hanging from it. */
+typedef struct {
+    uint32_t node[2 * COLLAPSE_PLAN_CUT_MAX - 1];
+    int8_t part[2 * COLLAPSE_PLAN_CUT_MAX - 1]; /* the subtree node[j] roots, -1 for a node above */
+    uint32_t n;
+    plan_part parts[COLLAPSE_PLAN_CUT_MAX];
+    uint32_t nparts;
+} plan_cut;
+
+static void cut_at(plan_cut *c, wide_ctx *x, uint32_t i, uint32_t depth)
 {
     const bvh_node *nodes = x->t->nodes;
-    for (uint32_t i = x->t->nnodes; i-- > 0;) {
-        if (nodes[i].count > 0)
-            plan_binary_leaf(&x->plan[i], &nodes[i]);
-        else
-            plan_inner(&x->plan[i], &nodes[i], &x->plan[i + 1], &x->plan[nodes[i].index]);
+    uint32_t j = c->n++;
+    c->node[j] = i;
+    if (depth == 0 || nodes[i].count > 0) {
+        c->part[j] = (int8_t)c->nparts;
+        c->parts[c->nparts++] = (plan_part){x, i, subtree_end(nodes, i), {{0}}};
+        return;
     }
+    c->part[j] = -1;
+    cut_at(c, x, i + 1, depth - 1);
+    cut_at(c, x, nodes[i].index, depth - 1);
+}
+
+/* Plans every binary node: the subtrees below the cut in parallel (when
+ * parallel; the whole tree as one otherwise), then the nodes above it,
+ * each subtree's costs standing in for it on the stack. */
+static void plan_collapse(wide_ctx *x, accel_run *run, bool parallel)
+{
+    plan_cut c;
+    c.n = c.nparts = 0;
+    cut_at(&c, x, 0, parallel ? COLLAPSE_PLAN_CUT_DEPTH : 0);
+    accel_parallel(run, c.nparts, plan_part_run, c.parts);
+    cost_stack s;
+    s.n = 0;
+    for (uint32_t j = c.n; j-- > 0;) {
+        if (c.part[j] >= 0)
+            s.at[s.n++] = c.parts[c.part[j]].cost;
+        else
+            plan_node(x, c.node[j], &s);
+    }
+    assert(s.n == 1);
 }
 
 /* Appends to out[n ..] the binary nodes that fill the at most k slots
@@ -177,45 +299,58 @@ static int root_children(const wide_ctx *x, uint32_t out[BVH_WIDTH])
     return 1;
 }
 
-/* Assigns a leaf its packs and their lanes' triangles (BVH_LANE_UNUSED
- * for the unused lanes, BVH_PACK_LAST on the last pack's lane 0);
- * fill_vertices copies the vertices afterwards. */
+/* Assigns a leaf its packs: their records, which fill_packs turns into
+ * the packs afterwards. */
 static uint32_t fill_leaf(wide_ctx *x, tri_range r)
 {
     uint32_t pack0 = x->next_pack, npacks = bvh_packs_for(r.count);
     x->next_pack += npacks;
-    for (uint32_t slot = 0; slot < BVH_WIDTH * npacks; slot++)
-        x->t->packs[pack0 + slot / BVH_WIDTH].tri[slot % BVH_WIDTH] =
-            slot < r.count ? x->t->tri_index[r.first + slot] : BVH_LANE_UNUSED;
-    x->t->packs[pack0 + npacks - 1].tri[0] |= BVH_PACK_LAST;
+    for (uint32_t j = 0; j < npacks; j++) {
+        uint32_t left = r.count - j * BVH_WIDTH;
+        x->records[pack0 + j] = (pack_record){r.first + j * BVH_WIDTH, (uint8_t)(left < BVH_WIDTH ? left : BVH_WIDTH),
+                                              j + 1 == npacks};
+    }
     return BVH_REF_LEAF | pack0;
 }
 
-/* The vertices of packs [b, e), from the mesh, NaN in unused lanes: a
- * linear pass, split in two parallel halves for large meshes. */
+/* Packs [b, e) from their records: each lane's triangle index and
+ * vertices, from tri_index and the mesh (BVH_LANE_UNUSED and NaN in unused
+ * lanes), BVH_PACK_LAST on the last pack's lane 0. This pass is the first
+ * to write the packs' memory (most of the tree's), so it maps its part in
+ * one call first (dragon, 1 thread: the pass 35.5-36.7 -> 31.5-32.3 ms, 3
+ * runs each), and runs in parallel halves for large meshes, which splits
+ * the mapping too. */
 typedef struct {
     bvh_tree *t;
     const arbor_mesh *m;
+    const pack_record *records;
     uint32_t b, e;
-} vertex_pass;
+} pack_pass;
 
-/* Pass number `half` of the array `passes`. */
-static void fill_vertices(void *passes, uint32_t half)
+/* Pass number `i` of the array `passes`. */
+static void fill_packs(void *passes, uint32_t i)
 {
-    const vertex_pass *vp = (const vertex_pass *)passes + half;
-    for (uint32_t p = vp->b; p < vp->e; p++) {
-        bvh_tri_pack *pack = &vp->t->packs[p];
+    const pack_pass *pp = (const pack_pass *)passes + i;
+    arbor_prefault(&pp->t->packs[pp->b], (size_t)(pp->e - pp->b) * sizeof(bvh_tri_pack));
+    for (uint32_t p = pp->b; p < pp->e; p++) {
+        const pack_record *rec = &pp->records[p];
+        bvh_tri_pack *pack = &pp->t->packs[p];
         for (int lane = 0; lane < BVH_WIDTH; lane++) {
-            uint32_t tri = bvh_lane_tri(pack, lane);
             arbor_vec3 v[3] = {{NAN, NAN, NAN}, {NAN, NAN, NAN}, {NAN, NAN, NAN}};
-            if (tri != BVH_LANE_UNUSED)
-                arbor_mesh_tri(vp->m, tri, &v[0], &v[1], &v[2]);
+            uint32_t tri = BVH_LANE_UNUSED;
+            if (lane < rec->lanes) {
+                tri = pp->t->tri_index[rec->first + (uint32_t)lane];
+                arbor_mesh_tri(pp->m, tri, &v[0], &v[1], &v[2]);
+            }
+            pack->tri[lane] = tri;
             for (int k = 0; k < 3; k++) {
                 pack->v[k][0][lane] = v[k].x;
                 pack->v[k][1][lane] = v[k].y;
                 pack->v[k][2][lane] = v[k].z;
             }
         }
+        if (rec->last)
+            pack->tri[0] |= BVH_PACK_LAST;
     }
 }
 
@@ -262,25 +397,29 @@ bool bvh_wide_build(bvh_tree *t, const arbor_mesh *m, accel_run *run, bool paral
      * leaves are at most the binary leaves. */
     uint32_t leaves = (t->nnodes + 1) / 2;
     size_t max_wide = leaves > 1 ? leaves - 1 : 1, max_packs = leaves + t->ntris / BVH_WIDTH;
-    wide_ctx x = {t, malloc(t->nnodes * sizeof *x.plan), 0, 0};
+    wide_ctx x = {t, malloc(t->nnodes * sizeof *x.plan), malloc(max_packs * sizeof *x.records), 0, 0};
     t->wide = bvh_alloc_aligned(max_wide * sizeof *t->wide);
     t->packs = bvh_alloc_aligned(max_packs * sizeof *t->packs);
-    if (x.plan != NULL && t->wide != NULL && t->packs != NULL) {
-        plan_collapse(&x);
+    bool ok = x.plan != NULL && x.records != NULL && t->wide != NULL && t->packs != NULL;
+    if (ok) {
+        plan_collapse(&x, run, parallel);
         uint32_t kids[BVH_WIDTH];
         fill_node(&x, kids, root_children(&x, kids));
         t->nwide = x.next_wide;
         t->npacks = x.next_pack;
         t->wide = bvh_shrink_aligned(t->wide, t->nwide * sizeof *t->wide);
         t->packs = bvh_shrink_aligned(t->packs, t->npacks * sizeof *t->packs);
+        ok = t->wide != NULL && t->packs != NULL;
     }
-    bool planned = x.plan != NULL;
+    if (ok) {
+        pack_pass halves[2] = {{t, m, x.records, 0, t->npacks / 2}, {t, m, x.records, t->npacks / 2, t->npacks}};
+        pack_pass whole = {t, m, x.records, 0, t->npacks};
+        accel_parallel(run, parallel ? 2 : 1, fill_packs, parallel ? halves : &whole);
+    }
     free(x.plan);
-    if (!planned || t->wide == NULL || t->packs == NULL)
+    free(x.records);
+    if (!ok)
         return arbor_fail(e, ARBOR_ERR_NOMEM, "bvh: out of memory for the wide tree of %u triangles", t->ntris);
-    vertex_pass halves[2] = {{t, m, 0, t->npacks / 2}, {t, m, t->npacks / 2, t->npacks}};
-    vertex_pass whole = {t, m, 0, t->npacks};
-    accel_parallel(run, parallel ? 2 : 1, fill_vertices, parallel ? halves : &whole);
     return true;
 }
 

@@ -1,4 +1,7 @@
-/* sys.c - clock, core count and file identity (see include/arbor/sys.h). */
+/* sys.c - clock, core count, file identity and prefaulting (see
+ * include/arbor/sys.h). */
+#define _DEFAULT_SOURCE /* madvise */
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
@@ -33,4 +36,20 @@ uint64_t arbor_file_stamp(const char *path)
             h *= 1099511628211ull;
         }
     return h != 0 ? h : 1;
+}
+
+void arbor_prefault(void *p, size_t bytes)
+{
+#ifdef MADV_POPULATE_WRITE
+    long page = sysconf(_SC_PAGESIZE);
+    if (page <= 0)
+        return;
+    uintptr_t lo = ((uintptr_t)p + (uintptr_t)page - 1) & ~((uintptr_t)page - 1);
+    uintptr_t hi = ((uintptr_t)p + bytes) & ~((uintptr_t)page - 1);
+    if (hi > lo)
+        (void)madvise((void *)lo, hi - lo, MADV_POPULATE_WRITE); /* a hint: failure leaves the faults to come */
+#else
+    (void)p;
+    (void)bytes;
+#endif
 }

@@ -590,6 +590,37 @@ static void test_parallel_build_matches_serial(void)
     arbor_mesh_free(&m);
 }
 
+/* The collapse on two threads (its plan cut into subtrees planned at once,
+ * its packs filled in two halves) writes the very wide tree the serial one
+ * does, byte for byte: nodes, packs, their order and padding. */
+static void test_parallel_collapse_matches_serial(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 70000, 16);
+    bvh_tree *t[2];
+    for (int k = 0; k < 2; k++) {
+        arbor_build_opts o;
+        arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
+        o.threads = k + 1;
+        accel_run run;
+        arbor_pool *own = accel_run_init(&run, &o);
+        arbor_tree_stats s;
+        arbor_err e;
+        t[k] = arbor_bvh_ops.build(&m, &o, &run, &s, &e);
+        arbor_pool_destroy(own);
+        TEST_ASSERT_NOT_NULL_MESSAGE(t[k], e.msg);
+        TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(t[k], &m, &s, &e), e.msg);
+    }
+    TEST_ASSERT_TRUE(t[0]->nwide > 1000);
+    TEST_ASSERT_EQUAL_UINT32(t[0]->nwide, t[1]->nwide);
+    TEST_ASSERT_EQUAL_UINT32(t[0]->npacks, t[1]->npacks);
+    TEST_ASSERT_EQUAL_MEMORY(t[0]->wide, t[1]->wide, t[0]->nwide * sizeof(bvh_wide_node));
+    TEST_ASSERT_EQUAL_MEMORY(t[0]->packs, t[1]->packs, t[0]->npacks * sizeof(bvh_tri_pack));
+    for (int k = 0; k < 2; k++)
+        arbor_bvh_ops.destroy(t[k]);
+    arbor_mesh_free(&m);
+}
+
 /* One corruption of a built tree or its statistics. */
 typedef void (*corruption)(bvh_tree *t, arbor_tree_stats *s);
 
@@ -763,5 +794,6 @@ int main(void)
     RUN_TEST(test_galleon);
     RUN_TEST(test_castle);
     RUN_TEST(test_bunny_two_threads);
+    RUN_TEST(test_parallel_collapse_matches_serial);
     return UNITY_END();
 }
