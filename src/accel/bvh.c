@@ -79,9 +79,19 @@ typedef struct {
     double sah_cost;
 } bvh_check;
 
+/* Whether box is exactly the union: the builders take every box's corners
+ * from its contents' by min and max, which do not round, so a box any
+ * larger (still containing them) is a builder's error all the same. */
+static bool box_is_union(const arbor_aabb *box, const arbor_aabb *u)
+{
+    return box->lo.x == u->lo.x && box->lo.y == u->lo.y && box->lo.z == u->lo.z && box->hi.x == u->hi.x &&
+           box->hi.y == u->hi.y && box->hi.z == u->hi.z;
+}
+
 static bool check_leaf(bvh_check *k, uint32_t i, const bvh_node *n, const arbor_aabb *box)
 {
     const bvh_tree *t = k->t;
+    arbor_aabb tight = aabb_empty();
     if (n->index != k->next_tri || n->count > t->ntris - n->index)
         return arbor_fail(k->e, ARBOR_ERR_INVALID,
                           "bvh node %u: leaf triangles [%u, +%u) do not follow the previous leaf's (next is %u of %u)", i,
@@ -97,7 +107,10 @@ static bool check_leaf(bvh_check *k, uint32_t i, const bvh_node *n, const arbor_
         k->seen[tri] = 1;
         if (!aabb_contains(*box, arbor_mesh_tri_bounds(k->m, tri)))
             return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: leaf box does not contain triangle %u", i, tri);
+        tight = aabb_union(tight, arbor_mesh_tri_bounds(k->m, tri));
     }
+    if (n->count > 0 && !box_is_union(box, &tight))
+        return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: leaf box is larger than its triangles' bounds", i);
     return true;
 }
 
@@ -131,7 +144,12 @@ static bool check_node(bvh_check *k, uint32_t i, const arbor_aabb *parent, uint3
     if (n->index != k->next_node)
         return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: right child is %u, not %u right after the left subtree", i,
                           n->index, k->next_node);
-    return check_node(k, n->index, &box, depth + 1);
+    if (!check_node(k, n->index, &box, depth + 1))
+        return false;
+    arbor_aabb kids = aabb_union(bvh_node_box(&t->nodes[i + 1]), bvh_node_box(&t->nodes[n->index]));
+    if (!box_is_union(&box, &kids))
+        return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: box is larger than its children's union", i);
+    return true;
 }
 
 static bool close_rel(double a, double b, double rel)

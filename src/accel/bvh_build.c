@@ -324,19 +324,24 @@ static inline __m128 select4(__m128 mask, __m128 a, __m128 b)
 #endif
 }
 
-/* Grows the side the mask selects by a reference's box and centroid: the
- * other side grows by an empty box, so neither needs a branch. */
-static inline void side_grow(range_box *r, __m128 mask, __m128 lo, __m128 hi, __m128 c)
+/* Grows the side the mask selects by a reference's centroid and, when
+ * `boxes`, its box: the other side grows by an empty box, so neither needs
+ * a branch. */
+static inline void side_grow(range_box *r, __m128 mask, __m128 lo, __m128 hi, __m128 c, bool boxes)
 {
     const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
-    box_grow(&r->box, select4(mask, lo, inf), select4(mask, hi, ninf));
+    if (boxes)
+        box_grow(&r->box, select4(mask, lo, inf), select4(mask, hi, ninf));
     box_grow(&r->cbox, select4(mask, c, inf), select4(mask, c, ninf));
 }
 
 /* Moves the references of prims[b, e) that go left by rule to the front,
- * computing both sides' boxes on the way; returns where the right side
- * starts (b or e when one side is empty; kids are then meaningless). */
-static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, const split_rule *rule, range_box kids[2])
+ * computing both sides' centroid boxes on the way and, when `boxes`, their
+ * boxes (else left empty); returns where the right side starts (b or e
+ * when one side is empty; kids are then meaningless). Inlined with a
+ * constant `boxes` into its two callers. */
+static inline uint32_t partition_sides(const bvh_builder *B, uint32_t b, uint32_t e, const split_rule *rule,
+                                       range_box kids[2], bool boxes)
 {
     bvh_prim *p = B->prims;
     range_box left = {box_empty(), box_empty()}, right = left;
@@ -349,8 +354,8 @@ static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, const sp
         __m128 lo = prim_lo(&p[i]), hi = prim_hi(&p[i]), c = centroid2(lo, hi);
         uint32_t goes = goes_left(rule, c);
         __m128 mask = _mm_castsi128_ps(_mm_set1_epi32(-(int32_t)goes));
-        side_grow(&left, mask, lo, hi, c);
-        side_grow(&right, _mm_xor_ps(mask, _mm_castsi128_ps(_mm_set1_epi32(-1))), lo, hi, c);
+        side_grow(&left, mask, lo, hi, c, boxes);
+        side_grow(&right, _mm_xor_ps(mask, _mm_castsi128_ps(_mm_set1_epi32(-1))), lo, hi, c, boxes);
         __m128 mlo = prim_lo(&p[m]), mhi = prim_hi(&p[m]);
         _mm_storeu_ps(p[m].lo, lo);
         _mm_storeu_ps(p[m].hi, hi);
@@ -361,6 +366,12 @@ static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, const sp
     kids[0] = left;
     kids[1] = right;
     return m;
+}
+
+/* The partition of the splits that know nothing of the sides' boxes. */
+static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, const split_rule *rule, range_box kids[2])
+{
+    return partition_sides(B, b, e, rule, kids, true);
 }
 
 /* The bins of the three axes: boxes and triangle counts. */
@@ -550,11 +561,17 @@ static bool sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t dep
         *m = b;
         return true;
     }
-    *m = partition(B, b, e, &rule, kids);
-    /* the split made is the one costed: as many go left as the bins counted */
+    /* The sides are the bins' on either side of the plane, so their boxes
+     * are the unions of those bins' boxes, to the bit (min and max do not
+     * round): the partition computes only the centroid boxes, which the
+     * bins do not keep (dragon, 1 thread: 357-368 -> 348 ms a build, 3 runs). */
+    *m = partition_sides(B, b, e, &rule, kids, false);
     uint32_t costed_left = 0;
-    for (uint32_t j = 0; j <= best_plane; j++)
-        costed_left += bins.count[rule.axis][j];
+    for (uint32_t j = 0; j < g.nbins; j++) {
+        box_merge(&kids[j > best_plane].box, &bins.box[rule.axis][j]);
+        costed_left += j <= best_plane ? bins.count[rule.axis][j] : 0;
+    }
+    /* the split made is the one costed: as many go left as the bins counted */
     assert(*m - b == costed_left);
     (void)costed_left;
     return true;

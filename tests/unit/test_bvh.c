@@ -643,6 +643,13 @@ static void grow_child_box(bvh_tree *t, arbor_tree_stats *s)
     (void)s;
     t->nodes[1].bounds[4] += 1.0f;
 }
+/* Still contains everything below it, but is no longer its children's
+ * union. */
+static void loosen_root_box(bvh_tree *t, arbor_tree_stats *s)
+{
+    (void)s;
+    t->nodes[0].bounds[0] -= 1.0f;
+}
 static void duplicate_triangle(bvh_tree *t, arbor_tree_stats *s)
 {
     (void)s;
@@ -726,7 +733,7 @@ static void test_validator_catches_corruption(void)
     static const corruption corruptions[] = {
         shrink_leaf_box,   grow_child_box,  duplicate_triangle, move_vertex_copy,         misplace_right_child,
         shift_leaf_range,  miscount_nodes,  miscount_depth,     misstate_mean_leaf_depth, misstate_sah_cost,
-        shrink_wide_leaf_box, drop_wide_child, swap_pack_triangle, clear_last_mark,
+        shrink_wide_leaf_box, drop_wide_child, swap_pack_triangle, clear_last_mark, loosen_root_box,
     };
     arbor_mesh m;
     test_random_soup(&m, 500, 17);
