@@ -22,9 +22,9 @@
  * Planning runs in parallel when the build has threads: the binary tree is
  * cut a few levels down, the subtrees below the cut are planned at once and
  * the nodes above it after them. Every node gets the plan a serial scan
- * gives it, so the tree does not depend on the threads. A node's costs are needed only by its
- * parent, so they live on a stack during the scan, and the plan keeps 16
- * bytes per binary node while the collapse runs.
+ * gives it, so the tree does not depend on the threads. A node's costs are
+ * needed only by its parent, so they live on a stack during the scan, and
+ * the plan keeps 16 bytes per binary node while the collapse runs.
  *
  * One pass, depth first, then writes the wide nodes and a record per pack
  * (its range of leaf order) into arrays sized for the worst case, which are
@@ -69,7 +69,7 @@ _Static_assert(BVH_WIDTH < 256, "a number of slots fits a byte");
 
 /* A subtree's least SAH costs (area x steps) in at most k = 1 .. BVH_WIDTH
  * slots, [k - 1]. Only a node's parent reads them, so they are not kept
- * per node but on a stack (see plan_subtree). */
+ * per node but on a stack (see plan_node). */
 typedef struct {
     float cost[BVH_WIDTH];
 } slot_costs;
