@@ -582,9 +582,12 @@ static bool sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t dep
  * that sorting by it is a total order whatever the input. */
 static inline int32_t float_order_key(float f)
 {
-    int32_t i;
-    memcpy(&i, &f, sizeof i);
-    return i ^ (int32_t)((uint32_t)(i >> 31) >> 1);
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    u ^= ((uint32_t)0 - (u >> 31)) >> 1; /* a negative float: its magnitude bits flipped */
+    int32_t key;
+    memcpy(&key, &u, sizeof key);
+    return key;
 }
 
 /* order[0, n): 0 .. n - 1 by key, ties by place (n <= BVH_SAH_EXACT_TRIS,

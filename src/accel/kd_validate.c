@@ -22,6 +22,7 @@
  * well above the builder's outward rounding of clipped boxes (2^-20): near
  * a split plane either side may hold a triangle that only touches it.
  */
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 
@@ -68,8 +69,18 @@ static inline bool kd_axis_overlaps(double p0, double p1, double p2, double r)
     return !(lo > r || hi < -r);
 }
 
-/* Separating-axis test: does triangle tri meet box b (faces included)? */
-static bool kd_tri_meets_box(const arbor_mesh *m, uint32_t tri, const kd_dbox *b)
+/* Separating-axis test: does triangle tri meet box b (faces included)?
+ * The triangle's normal is the one axis that can be ill-conditioned: for a
+ * needle, two of whose corners are a few float ulps apart, it is the cross
+ * product of two nearly opposite long edges and mostly rounding (a fuzzed
+ * needle from near the origin to 4e6 had its normal wrong, and touched a
+ * cell it was said to miss). So that axis decides only beyond a bound on
+ * its rounding: with `lenient` the answer is "may meet" (the leaf check:
+ * fail only when the triangle surely misses), otherwise "surely meets"
+ * (the coverage check: fail only when it surely enters an unlisted cell).
+ * The other axes are sums of products of long edges and stay exact to far
+ * below the tolerance. */
+static bool kd_tri_meets_box(const arbor_mesh *m, uint32_t tri, const kd_dbox *b, bool lenient)
 {
     arbor_vec3 p[3];
     arbor_mesh_tri(m, tri, &p[0], &p[1], &p[2]);
@@ -98,7 +109,21 @@ static bool kd_tri_meets_box(const arbor_mesh *m, uint32_t tri, const kd_dbox *b
                    edge[0][0] * edge[1][1] - edge[0][1] * edge[1][0]};
     double pn = n[0] * v[0][0] + n[1] * v[0][1] + n[2] * v[0][2];
     double rn = h[0] * fabs(n[0]) + h[1] * fabs(n[1]) + h[2] * fabs(n[2]);
-    if (fabs(pn) > rn)
+    /* d bounds each edge component's rounding (the corners' offsets from
+     * the centre, then their differences), e_n[k] that of n[k], and slack
+     * that of |pn| - rn, all generously (DBL_EPSILON is 2u) */
+    double vmax = 0.0;
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 3; k++)
+            vmax = fmax(vmax, fabs(v[i][k]));
+    double d = 4.0 * DBL_EPSILON * vmax, slack = DBL_EPSILON * (fabs(pn) + rn);
+    for (int k = 0; k < 3; k++) {
+        int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+        double e_n = d * (fabs(edge[0][k1]) + fabs(edge[1][k2]) + fabs(edge[0][k2]) + fabs(edge[1][k1])) + 2.0 * d * d +
+                     DBL_EPSILON * (fabs(edge[0][k1] * edge[1][k2]) + fabs(edge[0][k2] * edge[1][k1]));
+        slack += e_n * (fabs(v[0][k]) + h[k]);
+    }
+    if (fabs(pn) > rn + (lenient ? slack : -slack))
         return false;
     /* the cross products of the edges with the box's axes */
     for (int i = 0; i < 3; i++)
@@ -184,7 +209,7 @@ static bool kd_check_leaf(kd_check *c, uint32_t at, const kd_dbox *cell, uint32_
     for (uint32_t i = 0; i < count; i++) {
         if (tris[i] >= c->mesh->ntris)
             return arbor_fail(c->e, ARBOR_ERR_INVALID, "kd leaf %u: triangle %u of %u", at, tris[i], c->mesh->ntris);
-        if (!kd_tri_meets_box(c->mesh, tris[i], &grown))
+        if (!kd_tri_meets_box(c->mesh, tris[i], &grown, true))
             return arbor_fail(c->e, ARBOR_ERR_INVALID,
                               "kd leaf %u (depth %u): triangle %u does not touch the cell [%g %g %g]-[%g %g %g]", at,
                               depth, tris[i], cell->lo[0], cell->lo[1], cell->lo[2], cell->hi[0], cell->hi[1],
@@ -250,7 +275,7 @@ static bool kd_cover(kd_check *c, uint32_t tri, const kd_dbox *tbox, uint32_t at
     uint32_t axis = kd_node_kind(n);
     if (axis == KD_LEAF) {
         kd_dbox inner = kd_shrunk(c, cell, split_faces);
-        if (kd_tri_meets_box(c->mesh, tri, &inner) && !kd_listed_in(c->tree, at, tri))
+        if (kd_tri_meets_box(c->mesh, tri, &inner, false) && !kd_listed_in(c->tree, at, tri))
             return arbor_fail(c->e, ARBOR_ERR_INVALID,
                               "kd leaf %u: triangle %u enters its cell [%g %g %g]-[%g %g %g] but is not listed", at,
                               tri, cell->lo[0], cell->lo[1], cell->lo[2], cell->hi[0], cell->hi[1], cell->hi[2]);
