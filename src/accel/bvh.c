@@ -105,9 +105,10 @@ static bool check_leaf(bvh_check *k, uint32_t i, const bvh_node *n, const arbor_
         if (k->seen[tri])
             return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: triangle %u is in a second leaf", i, tri);
         k->seen[tri] = 1;
-        if (!aabb_contains(*box, arbor_mesh_tri_bounds(k->m, tri)))
+        arbor_aabb tri_box = arbor_mesh_tri_bounds(k->m, tri);
+        if (!aabb_contains(*box, tri_box))
             return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: leaf box does not contain triangle %u", i, tri);
-        tight = aabb_union(tight, arbor_mesh_tri_bounds(k->m, tri));
+        tight = aabb_union(tight, tri_box);
     }
     if (n->count > 0 && !box_is_union(box, &tight))
         return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh node %u: leaf box is larger than its triangles' bounds", i);

@@ -633,7 +633,8 @@ static bool sah_split_small(const bvh_builder *B, uint32_t b, uint32_t e, float 
     float best = INFINITY;
     int best_axis = 0;
     uint32_t best_count = 0;
-    for (int k = only_axis >= 0 ? only_axis : 0; k < (only_axis >= 0 ? only_axis + 1 : 3); k++) {
+    int first_axis = only_axis >= 0 ? only_axis : 0, end_axis = only_axis >= 0 ? only_axis + 1 : 3;
+    for (int k = first_axis; k < end_axis; k++) {
         for (uint32_t i = 0; i < n; i++)
             key[i] = float_order_key(p[i].lo[k] + p[i].hi[k]);
         small_order(key, n, order[k]);

@@ -517,6 +517,23 @@ static uint32_t subtree_tris(const bvh_tree *t, uint32_t i)
     return n->count > 0 ? n->count : subtree_tris(t, i + 1) + subtree_tris(t, n->index);
 }
 
+/* The bvh_tree itself (not the arbor_accel around it) of the SAH build
+ * over m on `threads`, required to be built and valid; *s its statistics. */
+static bvh_tree *build_sah_tree(const arbor_mesh *m, int threads, arbor_tree_stats *s)
+{
+    arbor_build_opts o;
+    arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
+    o.threads = threads;
+    accel_run run;
+    arbor_pool *own = accel_run_init(&run, &o);
+    arbor_err e;
+    bvh_tree *t = arbor_bvh_ops.build(m, &o, &run, s, &e);
+    arbor_pool_destroy(own);
+    TEST_ASSERT_NOT_NULL_MESSAGE(t, e.msg);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(t, m, s, &e), e.msg);
+    return t;
+}
+
 /* The SAH builder leaves a node that fits one pack of the wide tree
  * unsplit when its children's areas would add up to at least its own
  * (sah_pack_stays_leaf): on bunny, every inner node of at most BVH_WIDTH
@@ -527,15 +544,8 @@ static void test_sah_pack_sized_splits_shrink_area(void)
     arbor_mesh m;
     arbor_err e;
     TEST_ASSERT_TRUE(arbor_load_model(test_shared_model("bunny.obj"), &m, &e));
-    arbor_build_opts o;
-    arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
-    o.threads = 1;
-    accel_run run;
-    TEST_ASSERT_NULL(accel_run_init(&run, &o));
     arbor_tree_stats s;
-    bvh_tree *t = arbor_bvh_ops.build(&m, &o, &run, &s, &e);
-    TEST_ASSERT_NOT_NULL(t);
-    TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(t, &m, &s, &e), e.msg);
+    bvh_tree *t = build_sah_tree(&m, 1, &s);
     uint32_t small_splits = 0;
     for (uint32_t i = 0; i < t->nnodes; i++) {
         const bvh_node *n = &t->nodes[i];
@@ -597,20 +607,8 @@ static void test_parallel_collapse_matches_serial(void)
 {
     arbor_mesh m;
     test_random_soup(&m, 70000, 16);
-    bvh_tree *t[2];
-    for (int k = 0; k < 2; k++) {
-        arbor_build_opts o;
-        arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
-        o.threads = k + 1;
-        accel_run run;
-        arbor_pool *own = accel_run_init(&run, &o);
-        arbor_tree_stats s;
-        arbor_err e;
-        t[k] = arbor_bvh_ops.build(&m, &o, &run, &s, &e);
-        arbor_pool_destroy(own);
-        TEST_ASSERT_NOT_NULL_MESSAGE(t[k], e.msg);
-        TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(t[k], &m, &s, &e), e.msg);
-    }
+    arbor_tree_stats s;
+    bvh_tree *t[2] = {build_sah_tree(&m, 1, &s), build_sah_tree(&m, 2, &s)};
     TEST_ASSERT_TRUE(t[0]->nwide > 1000);
     TEST_ASSERT_EQUAL_UINT32(t[0]->nwide, t[1]->nwide);
     TEST_ASSERT_EQUAL_UINT32(t[0]->npacks, t[1]->npacks);
@@ -737,17 +735,10 @@ static void test_validator_catches_corruption(void)
     };
     arbor_mesh m;
     test_random_soup(&m, 500, 17);
-    arbor_build_opts o;
-    arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
-    o.threads = 1;
-    accel_run run;
-    TEST_ASSERT_NULL(accel_run_init(&run, &o)); /* one thread: no pool */
     for (size_t k = 0; k < sizeof corruptions / sizeof corruptions[0]; k++) {
         arbor_tree_stats s;
         arbor_err e;
-        bvh_tree *t = arbor_bvh_ops.build(&m, &o, &run, &s, &e);
-        TEST_ASSERT_NOT_NULL(t);
-        TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(t, &m, &s, &e), e.msg);
+        bvh_tree *t = build_sah_tree(&m, 1, &s);
         corruptions[k](t, &s);
         char msg[64];
         snprintf(msg, sizeof msg, "corruption %zu went unnoticed", k);
