@@ -7,7 +7,8 @@
 #   make test       every test; last line "N passed, M failed"
 #   make models     regenerate the procedural models in models/ (SIZE=large for big ones)
 #   make bench      the benchmark tables of docs/BENCH.md
-#   make bench-embree   the same with Intel Embree side by side
+#   make bench-embree   the same with Intel Embree side by side (EMBREE_ISA=avx2: Embree's
+#                       kernels at most AVX2, as arbor's are, on a CPU with AVX-512)
 #   make test SAN=address,undefined   the same under sanitizers (also SAN=thread), in build/san-*
 #   make asan       alias of make test SAN=address,undefined
 #   make fuzz       the libFuzzer targets of tests/fuzz for FUZZ_SECONDS each (clang)
@@ -220,7 +221,7 @@ bench-embree:
 	@scripts/deps.sh --embree
 	rm -f $(BUILD)/obj/src/bench/embree_peer.o $(BUILD)/arbord
 	$(MAKE) EMBREE=1 $(BUILD)/arbord
-	SHARED=$(SHARED) scripts/bench.sh --embree
+	SHARED=$(SHARED) scripts/bench.sh $(if $(EMBREE_ISA),--embree-isa $(EMBREE_ISA),--embree)
 
 asan:
 	@$(MAKE) --no-print-directory SAN=address,undefined test

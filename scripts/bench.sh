@@ -4,7 +4,10 @@
 # sah trees at one thread, and the k-d SAH trees' reference counts. Raw
 # output goes to build/bench/, the Markdown tables to build/bench/tables.md.
 #
-#   scripts/bench.sh [--embree] [--runs N]
+#   scripts/bench.sh [--embree] [--embree-isa ISA] [--runs N]
+#
+# --embree-isa caps the kernels Embree may use (arbord bench --help), e.g.
+# avx2 to compare with arbor's AVX2 kernels on a CPU that has AVX-512.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 arbord=build/arbord
@@ -15,8 +18,9 @@ runs=5
 while [ $# -gt 0 ]; do
     case "$1" in
         --embree) embree=(--embree) ;;
+        --embree-isa) embree=(--embree-isa "$2"); shift ;;
         --runs) runs=$2; shift ;;
-        *) echo "bench.sh: unknown option '$1' (--embree, --runs N)" >&2; exit 2 ;;
+        *) echo "bench.sh: unknown option '$1' (--embree, --embree-isa ISA, --runs N)" >&2; exit 2 ;;
     esac
     shift
 done

@@ -89,7 +89,9 @@ def rayset_table(rows, threads):
             r = find(rows, m, accel, builder)
             if r is None or r["threads"] != threads:
                 continue
-            tracer = "Embree" if accel == "embree" else f"{accel} {builder}"
+            tracer = f"{accel} {builder}"
+            if accel == "embree":
+                tracer = f"Embree (at most {r['kernel']})" if r.get("kernel") else "Embree"
             build_ratio = (r["build_ms"] / peer["build_ms"] if peer and accel != "embree" and peer["build_ms"]
                            else None)
             out.append(f"| {m} | {r['triangles']:,} | {tracer} | {fmt(r['build_ms'])} | {fmt(r['primary_mrays'])}"

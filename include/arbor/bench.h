@@ -53,7 +53,8 @@ typedef struct {
     uint32_t triangles;
     const char *accel, *builder;  /* "bvh"/"kd" and a builder name, or "embree" and "default" */
     const char *kernel;           /* the traversal kernel the tree traced with (arbor_accel_kernel_name:
-                                   * "avx2", "sse2"); NULL in Embree's row (Embree picks its own) */
+                                   * "avx2", "sse2"); in Embree's row opts.embree_isa, its limit
+                                   * (NULL: Embree picked the best for the CPU) */
     int threads;
     double build_ms, mean_leaf_depth, mean_tris_per_leaf, sah_cost, render_ms;
     double bytes_per_tri;         /* memory of the structure rays traverse, per triangle: the
@@ -76,6 +77,8 @@ typedef struct {
     int threads;                         /* build and trace threads, the caller included; 0 = as many
                                           * as the pool has, or one per core without a pool */
     bool embree;                         /* add Embree's row and every row's ratio to it */
+    const char *embree_isa;              /* NULL: Embree's kernels for the best ISA the CPU has;
+                                          * else the highest it may use (arbor_embree_build) */
     float scale;                         /* measure the mesh scaled by this power of two (see above) */
     arbor_pool *pool;                    /* builds, renders, traces on it; NULL: a pool of `threads`
                                           * for the call. Figures at N threads mean N threads only

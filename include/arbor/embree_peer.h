@@ -23,10 +23,13 @@ typedef struct arbor_embree_peer arbor_embree_peer;
 /* True when this binary was built with Embree. */
 bool arbor_embree_available(void);
 
-/* A device limited to `threads` build threads (0 = Embree's default) and a
- * triangle scene at the default build quality; *commit_ms gets the
- * rtcCommitScene time. NULL with e filled on failure. */
-arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e);
+/* A device limited to `threads` build threads (0 = Embree's default) and to
+ * kernels of at most `max_isa` (NULL: the best the CPU has; else Embree's
+ * max_isa: "sse2", "sse4.2", "avx", "avx2", "avx512"), and a triangle scene
+ * at the default build quality; *commit_ms gets the rtcCommitScene time.
+ * NULL with e filled on failure. */
+arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, const char *max_isa, double *commit_ms,
+                                      arbor_err *e);
 
 /* The bytes the scene's build left allocated (its BVH, with the triangle
  * data its leaves hold), as the device's memory monitor counts them: the

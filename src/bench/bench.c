@@ -185,6 +185,7 @@ static bool measure_set(void *ctx, double *value, arbor_err *e)
 typedef struct {
     const arbor_mesh *mesh;
     int threads;
+    const char *max_isa;
     arbor_embree_peer *peer; /* the last one built */
 } embree_measure;
 
@@ -192,7 +193,7 @@ static bool measure_embree_build(void *ctx, double *value, arbor_err *e)
 {
     embree_measure *m = ctx;
     arbor_embree_free(m->peer);
-    m->peer = arbor_embree_build(m->mesh, m->threads, value, e);
+    m->peer = arbor_embree_build(m->mesh, m->threads, m->max_isa, value, e);
     return m->peer != NULL;
 }
 
@@ -298,7 +299,8 @@ static bool bench_embree(bench_run *b, arbor_err *e)
 {
     arbor_bench_row *row = &b->rows[b->done];
     row_init(b, row, "embree", "default");
-    embree_measure m = {b->mesh, b->threads, NULL};
+    row->kernel = b->o->embree_isa;
+    embree_measure m = {b->mesh, b->threads, b->o->embree_isa, NULL};
     bool ok = median_of_runs(b->o->runs, b->o->cancel, measure_embree_build, &m, &row->build_ms, e);
     if (ok && b->mesh->ntris > 0)
         row->bytes_per_tri = (double)arbor_embree_bvh_bytes(m.peer) / (double)b->mesh->ntris;

@@ -67,7 +67,8 @@ static bool add_mesh(arbor_embree_peer *p, const arbor_mesh *m, arbor_err *e)
     return true;
 }
 
-arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e)
+arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, const char *max_isa, double *commit_ms,
+                                      arbor_err *e)
 {
     arbor_embree_peer *p = calloc(1, sizeof *p);
     if (p == NULL) {
@@ -78,8 +79,11 @@ arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *
     arbor_err_clear(&local);
     p->err = &local;
     char config[64] = "";
+    int len = 0;
     if (threads > 0)
-        snprintf(config, sizeof config, "threads=%d", threads);
+        len = snprintf(config, sizeof config, "threads=%d", threads);
+    if (max_isa != NULL)
+        snprintf(config + len, sizeof config - (size_t)len, "%smax_isa=%s", len > 0 ? "," : "", max_isa);
     p->device = rtcNewDevice(config);
     if (p->device == NULL) {
         free(p);
@@ -171,10 +175,12 @@ bool arbor_embree_available(void)
     return false;
 }
 
-arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, double *commit_ms, arbor_err *e)
+arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, const char *max_isa, double *commit_ms,
+                                      arbor_err *e)
 {
     (void)m;
     (void)threads;
+    (void)max_isa;
     *commit_ms = 0.0;
     arbor_fail(e, ARBOR_ERR_INVALID, "built without Embree; run `make bench-embree`");
     return NULL;

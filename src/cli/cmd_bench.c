@@ -41,6 +41,8 @@ static void usage(FILE *out)
             "  --runs N          repetitions, 1..%d; every figure is their median (default 5)\n"
             "  --format F        md, csv or json (one object per line) (default md)\n"
             "  --embree          add Intel Embree's row and each row's ratio to it\n"
+            "  --embree-isa ISA  the best kernels Embree may use: sse2, sse4.2, avx, avx2 or\n"
+            "                    avx512 (default: the best the CPU has)\n"
             "  --scale F         measure each model scaled by F, a power of two (1024, 1/1024,\n"
             "                    0.0009765625): exact, so hits and distances (times F) stay the same\n"
             "  --parse           instead: time the OBJ parser on each model's text in memory\n",
@@ -254,6 +256,22 @@ static bool parse_scale(const char *v, float *scale)
     return ok;
 }
 
+/* Embree's names for its ISA levels (its max_isa setting), checked here so
+ * that a misspelt one is an error rather than Embree's silent default. */
+static bool parse_embree_isa(const char *v, arbor_bench_opts *o)
+{
+    static const char *const names[] = {"sse2", "sse4.2", "avx", "avx2", "avx512"};
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
+        if (strcmp(v, names[i]) == 0) {
+            o->embree_isa = names[i];
+            o->embree = true;
+            return true;
+        }
+    }
+    fprintf(stderr, "arbord bench: --embree-isa must be sse2, sse4.2, avx, avx2 or avx512, not '%s'\n", v);
+    return false;
+}
+
 /* Returns -1 to go on, else the exit code. */
 static int parse_args(int argc, char **argv, bench_args *a)
 {
@@ -269,7 +287,7 @@ static int parse_args(int argc, char **argv, bench_args *a)
             a->parse = true;
         } else if (strcmp(opt, "--model") == 0 || strcmp(opt, "--accel") == 0 || strcmp(opt, "--builder") == 0 ||
                    strcmp(opt, "--threads") == 0 || strcmp(opt, "--runs") == 0 || strcmp(opt, "--format") == 0 ||
-                   strcmp(opt, "--scale") == 0) {
+                   strcmp(opt, "--scale") == 0 || strcmp(opt, "--embree-isa") == 0) {
             if ((v = cli_value("bench", argc, argv, &i)) == NULL)
                 return 2;
             if (strcmp(opt, "--model") == 0) {
@@ -287,6 +305,8 @@ static int parse_args(int argc, char **argv, bench_args *a)
                 ok = cli_int("bench", opt, v, 1, ARBOR_BENCH_MAX_RUNS, &a->opts.runs);
             } else if (strcmp(opt, "--scale") == 0) {
                 ok = parse_scale(v, &a->opts.scale);
+            } else if (strcmp(opt, "--embree-isa") == 0) {
+                ok = parse_embree_isa(v, &a->opts);
             } else if (strcmp(v, "md") == 0 || strcmp(v, "csv") == 0 || strcmp(v, "json") == 0) {
                 a->format = v[0] == 'm' ? FORMAT_MD : v[0] == 'c' ? FORMAT_CSV : FORMAT_JSON;
             } else {

@@ -2,7 +2,8 @@
 # tests/cli/run.sh - arbord and the scripts as a user meets them: output
 # errors fail every subcommand, render refuses names it would not honour and
 # never removes what it did not make, options given twice are refused,
-# --threads 0 is documented, the JSON keys scripts read stay put, bench_tables.py
+# --threads 0 is documented, the JSON keys scripts read stay put, bench checks
+# the Embree ISA it is given, bench_tables.py
 # reads bench's output, and scripts/deps.sh finds deb entries in both apt
 # source formats. Ends with Unity's summary line, for tests/run.sh.
 #
@@ -101,6 +102,22 @@ threads_zero_is_documented() {
     grep -q -- "--threads 0" "$root/README.md" || fail "README.md does not document --threads 0"
 }
 
+# Embree says nothing of an ISA it does not know, so bench checks the name;
+# a known one is Embree's row's kernel (where arbord has Embree).
+embree_isa_is_checked_and_reported() {
+    usage_fails bench --model "$model" --embree-isa avx3 &&
+        grep -q -- "--embree-isa must be sse2, sse4.2, avx, avx2 or avx512, not 'avx3'" "$tmp/usage.err" || return 1
+    "$arbord" bench --model "$model" --accel bvh --builder sah --runs 1 --embree-isa sse2 --format json \
+        > "$tmp/isa.json" 2>"$tmp/isa.err" || { grep -q "built without Embree" "$tmp/isa.err"; return; }
+    python3 - "$tmp/isa.json" <<'EOF'
+import json, sys
+rows = [json.loads(l) for l in open(sys.argv[1])]
+assert [r["accel"] for r in rows] == ["bvh", "embree"], rows
+assert rows[1]["kernel"] == "sse2", rows[1]
+assert rows[1]["primary_hits"] == rows[0]["primary_hits"] > 0, rows
+EOF
+}
+
 # The keys scripts/bench_tables.py and users' scripts read.
 json_keys_stay() {
     "$arbord" stats --model "$model" --accel kd --builder sah --json > "$tmp/stats.json" &&
@@ -189,6 +206,7 @@ check one_value_options_refuse_a_second one_value_options_refuse_a_second
 check render_never_removes_what_it_did_not_make render_never_removes_what_it_did_not_make
 check threads_zero_is_documented threads_zero_is_documented
 check json_keys_stay json_keys_stay
+check embree_isa_is_checked_and_reported embree_isa_is_checked_and_reported
 check bench_tables_read_bench_output bench_tables_read_bench_output
 check deps_reads_both_apt_formats deps_reads_both_apt_formats
 echo
