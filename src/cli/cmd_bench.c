@@ -41,8 +41,8 @@ static void usage(FILE *out)
             "  --runs N          repetitions, 1..%d; every figure is their median (default 5)\n"
             "  --format F        md, csv or json (one object per line) (default md)\n"
             "  --embree          add Intel Embree's row and each row's ratio to it\n"
-            "  --embree-isa ISA  the best kernels Embree may use: sse2, sse4.2, avx, avx2 or\n"
-            "                    avx512 (default: the best the CPU has)\n"
+            "  --embree-isa ISA  --embree, with the best kernels Embree may use: sse2, sse4.2,\n"
+            "                    avx, avx2 or avx512 (default: the best the CPU has)\n"
             "  --scale F         measure each model scaled by F, a power of two (1024, 1/1024,\n"
             "                    0.0009765625): exact, so hits and distances (times F) stay the same\n"
             "  --parse           instead: time the OBJ parser on each model's text in memory\n",
