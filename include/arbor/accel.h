@@ -171,6 +171,8 @@ bool arbor_accel_intersect_traced(const arbor_accel *a, arbor_ray *r, arbor_hit 
 
 /* Any hit in (r->tmin, r->tmax). */
 bool arbor_accel_occluded(const arbor_accel *a, const arbor_ray *r);
+/* The same, adding the work it did to *c (arbor_accel_intersect_counted). */
+bool arbor_accel_occluded_counted(const arbor_accel *a, const arbor_ray *r, arbor_trace_counts *c);
 
 void arbor_accel_stats(const arbor_accel *a, arbor_tree_stats *s);
 

@@ -64,6 +64,8 @@ typedef struct {
     double ratio[ARBOR_SET_COUNT];
     uint64_t primary_hits;  /* of one pass over the primary set */
     double primary_tsum;    /* sum of those hits' distances */
+    double nodes_per_ray[ARBOR_SET_COUNT];  /* the work per ray of each set (arbor_trace_counts: */
+    double tris_per_ray[ARBOR_SET_COUNT];   /* node steps, triangle tests); NAN in Embree's row */
 } arbor_bench_row;
 
 /* Called on the benchmarking thread after each row is measured: `done` of

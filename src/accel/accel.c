@@ -191,6 +191,11 @@ bool arbor_accel_occluded(const arbor_accel *a, const arbor_ray *r)
     return a->queries->occluded(a->impl, r);
 }
 
+bool arbor_accel_occluded_counted(const arbor_accel *a, const arbor_ray *r, arbor_trace_counts *c)
+{
+    return a->queries->occluded_counted(a->impl, r, c);
+}
+
 void arbor_accel_stats(const arbor_accel *a, arbor_tree_stats *s)
 {
     *s = a->stats;

@@ -54,6 +54,7 @@ typedef struct {
     bool (*intersect)(const void *impl, arbor_ray *r, arbor_hit *h);
     bool (*intersect_counted)(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
     bool (*occluded)(const void *impl, const arbor_ray *r);
+    bool (*occluded_counted)(const void *impl, const arbor_ray *r, arbor_trace_counts *c);
     bool (*intersect_traced)(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c,
                              arbor_node_fn visit, void *user);
 } accel_queries;

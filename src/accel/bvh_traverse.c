@@ -306,5 +306,10 @@ static bool bvh_occluded(const void *impl, const arbor_ray *r)
     return bvh_traverse(impl, r, true, NULL, NULL, NULL, NULL);
 }
 
+static bool bvh_occluded_counted(const void *impl, const arbor_ray *r, arbor_trace_counts *c)
+{
+    return bvh_traverse(impl, r, true, NULL, c, NULL, NULL);
+}
+
 const accel_queries ACCEL_KERNEL_SYM(bvh_queries) = {bvh_intersect, bvh_intersect_counted, bvh_occluded,
-                                                     bvh_intersect_traced};
+                                                     bvh_occluded_counted, bvh_intersect_traced};

@@ -7,7 +7,8 @@
 #include "kd_internal.h"
 
 /* kd_traverse.c is compiled once, for every kernel. */
-static const accel_queries kd_queries = {kd_intersect, kd_intersect_counted, kd_occluded, kd_intersect_traced};
+static const accel_queries kd_queries = {kd_intersect, kd_intersect_counted, kd_occluded, kd_occluded_counted,
+                                         kd_intersect_traced};
 
 const arbor_accel_ops arbor_kd_ops = {
     kd_build, {&kd_queries, &kd_queries}, kd_walk_nodes, kd_validate, kd_destroy,

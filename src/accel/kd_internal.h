@@ -334,6 +334,7 @@ void kd_destroy(void *impl);
 bool kd_intersect(const void *impl, arbor_ray *r, arbor_hit *h);
 bool kd_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
 bool kd_occluded(const void *impl, const arbor_ray *r);
+bool kd_occluded_counted(const void *impl, const arbor_ray *r, arbor_trace_counts *c);
 bool kd_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
                          void *user);
 void kd_walk_nodes(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user);

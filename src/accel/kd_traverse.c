@@ -311,3 +311,9 @@ bool kd_occluded(const void *impl, const arbor_ray *r)
     arbor_ray copy = *r;
     return kd_trace(impl, &copy, NULL, NULL, true, NULL, NULL);
 }
+
+bool kd_occluded_counted(const void *impl, const arbor_ray *r, arbor_trace_counts *c)
+{
+    arbor_ray copy = *r;
+    return kd_trace(impl, &copy, NULL, c, true, NULL, NULL);
+}

@@ -242,6 +242,28 @@ static bool time_sets(const bench_run *b, arbor_trace_kernel kernel, const void 
     return true;
 }
 
+/* One counted pass over each set: the per-ray work of the tree's queries
+ * (closest hit for primary and diffuse rays, any hit for shadow rays), the
+ * same work the timed passes do. */
+static void count_sets(const bench_run *b, const arbor_accel *tree, arbor_bench_row *row)
+{
+    const arbor_ray *rays[ARBOR_SET_COUNT] = {b->sets.primary, b->sets.diffuse, b->sets.shadow};
+    size_t n[ARBOR_SET_COUNT] = {b->sets.nprimary, b->sets.ndiffuse, b->sets.nshadow};
+    for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+        arbor_trace_counts c = {0, 0};
+        for (size_t i = 0; i < n[s]; i++) {
+            arbor_ray r = rays[s][i];
+            arbor_hit h;
+            if (s == ARBOR_SET_SHADOW)
+                arbor_accel_occluded_counted(tree, &r, &c);
+            else
+                arbor_accel_intersect_counted(tree, &r, &h, &c);
+        }
+        row->nodes_per_ray[s] = n[s] > 0 ? (double)c.nodes / (double)n[s] : 0.0;
+        row->tris_per_ray[s] = n[s] > 0 ? (double)c.tris / (double)n[s] : 0.0;
+    }
+}
+
 static void row_init(const bench_run *b, arbor_bench_row *row, const char *accel, const char *builder)
 {
     memset(row, 0, sizeof *row);
@@ -253,7 +275,7 @@ static void row_init(const bench_run *b, arbor_bench_row *row, const char *accel
     row->threads = b->threads;
     row->mean_leaf_depth = row->mean_tris_per_leaf = row->sah_cost = row->render_ms = row->bytes_per_tri = NAN;
     for (int s = 0; s < ARBOR_SET_COUNT; s++)
-        row->ratio[s] = NAN;
+        row->ratio[s] = row->nodes_per_ray[s] = row->tris_per_ray[s] = NAN;
 }
 
 static void row_finished(bench_run *b)
@@ -289,6 +311,8 @@ static bool bench_tree(bench_run *b, arbor_accel_kind kind, arbor_builder builde
         ok = median_of_runs(b->o->runs, b->o->cancel, measure_render, &r, &row->render_ms, e);
     }
     ok = ok && time_sets(b, arbor_accel_kernel, bm.tree, row, e);
+    if (ok)
+        count_sets(b, bm.tree, row);
     arbor_accel_free(bm.tree);
     if (ok)
         row_finished(b);

@@ -97,6 +97,13 @@ cJSON *arbor_report_bench_row(const arbor_bench_row *r, bool with_ratios)
     }
     put_number(&w, "primary_hits", (double)r->primary_hits);
     put_number(&w, "primary_tsum", r->primary_tsum);
+    for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+        char key[48];
+        snprintf(key, sizeof key, "%s_nodes_per_ray", arbor_ray_set_name((arbor_ray_set)s));
+        put_number(&w, key, r->nodes_per_ray[s]);
+        snprintf(key, sizeof key, "%s_tris_per_ray", arbor_ray_set_name((arbor_ray_set)s));
+        put_number(&w, key, r->tris_per_ray[s]);
+    }
     for (int s = 0; with_ratios && s < ARBOR_SET_COUNT; s++) {
         if (isnan(r->ratio[s]))
             continue; /* the Embree row itself */

@@ -133,6 +133,10 @@ static void print_table_row(const arbor_bench_row *r, bool with_ratios, bool csv
         put_number(csv, "%.2f", r->mrays[s]);
     put_number(csv, "%.0f", (double)r->primary_hits);
     put_number(csv, "%.6g", r->primary_tsum);
+    for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+        put_number(csv, "%.2f", r->nodes_per_ray[s]);
+        put_number(csv, "%.2f", r->tris_per_ray[s]);
+    }
     for (int s = 0; with_ratios && s < ARBOR_SET_COUNT; s++)
         put_number(csv, "%.2f", r->ratio[s]);
     puts(csv ? "" : " |");

@@ -130,7 +130,8 @@ want_stats = ["model", "triangles", "accel", "builder", "layout", "build_ms", "n
               "max_depth", "mean_leaf_depth", "mean_tris_per_leaf", "refs", "bytes", "sah_cost"]
 want_bench = ["model", "scale", "triangles", "accel", "builder", "kernel", "threads", "build_ms", "mean_leaf_depth",
               "mean_tris_per_leaf", "sah_cost", "bytes_per_tri", "render_ms", "primary_mrays", "diffuse_mrays", "shadow_mrays",
-              "primary_hits", "primary_tsum"]
+              "primary_hits", "primary_tsum", "primary_nodes_per_ray", "primary_tris_per_ray", "diffuse_nodes_per_ray",
+              "diffuse_tris_per_ray", "shadow_nodes_per_ray", "shadow_tris_per_ray"]
 assert len(stats) == 1 and list(stats[0]) == want_stats, list(stats[0])
 assert stats[0]["layout"] == "binary", stats[0]
 assert len(bench) == 1 and list(bench[0]) == want_bench, list(bench[0])

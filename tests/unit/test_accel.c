@@ -63,7 +63,8 @@ static size_t check_closest(const arbor_accel *tree, const arbor_mesh *m, const 
 }
 
 /* Any-hit answers follow from the closest hit: with tmax at half the closest
- * distance nothing is hit, with tmax at twice it something is. */
+ * distance nothing is hit, with tmax at twice it something is. The counted
+ * query answers the same, and a hit took a node step and a triangle test. */
 static size_t check_occluded(const arbor_accel *tree, const test_truth *ts, char *msg, size_t msglen)
 {
     size_t bad = 0;
@@ -79,9 +80,14 @@ static size_t check_occluded(const arbor_accel *tree, const test_truth *ts, char
             r.tmax = 2.0f * ts->hit[i].t;
             expect = true;
         }
-        if (arbor_accel_occluded(tree, &r) != expect && bad++ == 0)
+        arbor_trace_counts c = {0, 0};
+        bool counted = arbor_accel_occluded_counted(tree, &r, &c);
+        if ((arbor_accel_occluded(tree, &r) != expect || counted != expect) && bad++ == 0)
             snprintf(msg, msglen, "ray %zu: occluded should be %s (tmax %g)", i, expect ? "true" : "false",
                      (double)r.tmax);
+        else if (counted && (c.nodes == 0 || c.tris == 0) && bad++ == 0)
+            snprintf(msg, msglen, "ray %zu: occluded, counting %llu nodes and %llu triangles", i,
+                     (unsigned long long)c.nodes, (unsigned long long)c.tris);
     }
     return bad;
 }

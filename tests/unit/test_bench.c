@@ -126,7 +126,11 @@ static void test_every_tree_gets_its_row_and_the_same_hits_as_brute_force(void)
         for (int s = 0; s < ARBOR_SET_COUNT; s++) {
             TEST_ASSERT_TRUE(r->mrays[s] > 0.0);
             TEST_ASSERT_TRUE(isnan(r->ratio[s])); /* no Embree */
+            TEST_ASSERT_TRUE(r->nodes_per_ray[s] > 0.0 && r->tris_per_ray[s] > 0.0);
         }
+        /* every hit took a triangle test at least */
+        double hits_per_ray = (double)truth / (ARBOR_PROTOCOL_WIDTH * ARBOR_PROTOCOL_HEIGHT);
+        TEST_ASSERT_TRUE_MESSAGE(r->tris_per_ray[ARBOR_SET_PRIMARY] >= hits_per_ray, r->builder);
     }
 }
 
@@ -254,11 +258,13 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
     row.mean_leaf_depth = row.mean_tris_per_leaf = row.sah_cost = row.render_ms = row.bytes_per_tri = NAN;
     for (int s = 0; s < ARBOR_SET_COUNT; s++) {
         row.mrays[s] = 1.5;
-        row.ratio[s] = NAN;
+        row.ratio[s] = row.nodes_per_ray[s] = row.tris_per_ray[s] = NAN;
     }
-    char keys[512];
+    char keys[768];
     const char *row_keys = "model,scale,triangles,accel,builder,kernel,threads,build_ms,mean_leaf_depth,mean_tris_per_leaf,"
-                           "sah_cost,bytes_per_tri,render_ms,primary_mrays,diffuse_mrays,shadow_mrays,primary_hits,primary_tsum";
+                           "sah_cost,bytes_per_tri,render_ms,primary_mrays,diffuse_mrays,shadow_mrays,primary_hits,primary_tsum,"
+                           "primary_nodes_per_ray,primary_tris_per_ray,diffuse_nodes_per_ray,diffuse_tris_per_ray,"
+                           "shadow_nodes_per_ray,shadow_tris_per_ray";
     cJSON *o = arbor_report_bench_row(&row, true);
     TEST_ASSERT_NOT_NULL(o);
     keys_of(o, keys, sizeof keys);
@@ -266,6 +272,7 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
     TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "sah_cost")));
     TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "render_ms")));
     TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "kernel")));
+    TEST_ASSERT_TRUE(cJSON_IsNull(cJSON_GetObjectItem(o, "shadow_tris_per_ray")));
     cJSON_Delete(o);
 
     row.accel = "bvh";
@@ -274,7 +281,7 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
         row.ratio[s] = 0.5;
     o = arbor_report_bench_row(&row, true);
     keys_of(o, keys, sizeof keys);
-    char with_ratios[600];
+    char with_ratios[900];
     snprintf(with_ratios, sizeof with_ratios, "%s,primary_ratio,diffuse_ratio,shadow_ratio", row_keys);
     TEST_ASSERT_EQUAL_STRING(with_ratios, keys);
     TEST_ASSERT_EQUAL_DOUBLE(0.5, cJSON_GetObjectItem(o, "shadow_ratio")->valuedouble);
