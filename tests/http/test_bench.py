@@ -51,7 +51,8 @@ def test_bench_job_runs_to_done():
     cli = _cli_row()
     row = [x for x in job["rows"] if (x["accel"], x["builder"]) == ("bvh", "sah")][0]
     eq(set(row), set(cli), "bench row keys vs arbord bench --format json")
-    for k in ("triangles", "primary_hits", "sah_cost", "mean_leaf_depth", "mean_tris_per_leaf"):
+    for k in ("triangles", "primary_hits", "sah_cost", "mean_leaf_depth", "mean_tris_per_leaf", "primary_nodes_per_ray",
+              "diffuse_tris_per_ray", "shadow_nodes_per_ray"):
         eq(row[k], cli[k], "bvh:sah row %s vs arbord bench" % k)
     check(abs(row["primary_tsum"] - cli["primary_tsum"]) <= 1e-6 * abs(cli["primary_tsum"]),
           "primary_tsum %r vs arbord bench %r" % (row["primary_tsum"], cli["primary_tsum"]))
