@@ -209,10 +209,14 @@ test('the compare view shows a progress bar and then eight bars per chart', T, a
             study: f.querySelectorAll('rect.bar.study').length,
         })));
         await screenshot(page, 'compare-done');
-        assert.equal(charts.length, 8);
+        assert.equal(charts.length, 10);
         for (const c of charts) {
             assert.equal(c.ours.length, 8, `${c.metric}: ${c.ours.length} bars`);
             assert.ok(c.ours.every((v) => v !== ''), `${c.metric}: a bar without a value`);
+        }
+        // every tree's diffuse rays step through a node and test a triangle at least
+        for (const m of ['diffuse_nodes_per_ray', 'diffuse_tris_per_ray']) {
+            assert.ok(charts.find((c) => c.metric === m).ours.every((v) => Number(v) > 0), `${m}: a bar at 0`);
         }
         // castle is in the study: its seven trees beside ours in tables 1-4
         for (const m of ['build_ms', 'render_ms', 'mean_leaf_depth', 'mean_tris_per_leaf']) {

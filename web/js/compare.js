@@ -1,5 +1,6 @@
 // compare.js - the compare view: an /api/bench job over the eight trees with a
-// progress bar, then one SVG bar chart per measure (eight bars each, ours),
+// progress bar, then one SVG bar chart per measure (eight bars each, ours;
+// rates and the work per diffuse ray behind them),
 // with the study's figures beside ours for galleon and castle and Embree's
 // figure as a line where the daemon measured it.
 
@@ -21,6 +22,9 @@ export const CHARTS = [
     { key: 'primary_mrays', title: 'Primary rays', unit: 'Mrays/s', better: 'higher', embree: true },
     { key: 'diffuse_mrays', title: 'Diffuse rays', unit: 'Mrays/s', better: 'higher', embree: true },
     { key: 'shadow_mrays', title: 'Shadow rays', unit: 'Mrays/s', better: 'higher', embree: true },
+    // The work behind the diffuse rate, where the trees differ most.
+    { key: 'diffuse_nodes_per_ray', title: 'Node steps per diffuse ray', unit: '', better: 'lower' },
+    { key: 'diffuse_tris_per_ray', title: 'Triangle tests per diffuse ray', unit: '', better: 'lower' },
 ];
 
 const esc = (s) => String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
