@@ -220,15 +220,24 @@ static void build_opts(const bench_run *b, arbor_accel_kind kind, arbor_builder 
     opts->cancel = b->o->cancel;
 }
 
+/* Set s's rays, and their number in *n. */
+static const arbor_ray *set_rays(const arbor_raysets *sets, int s, size_t *n)
+{
+    const arbor_ray *rays[ARBOR_SET_COUNT] = {sets->primary, sets->diffuse, sets->shadow};
+    const size_t count[ARBOR_SET_COUNT] = {sets->nprimary, sets->ndiffuse, sets->nshadow};
+    *n = count[s];
+    return rays[s];
+}
+
 /* Times the three sets with one tracer, filling the row's Mrays/s, hits, tsum. */
 static bool time_sets(const bench_run *b, arbor_trace_kernel kernel, const void *tracer, arbor_bench_row *row,
                       arbor_err *e)
 {
-    const arbor_ray *rays[ARBOR_SET_COUNT] = {b->sets.primary, b->sets.diffuse, b->sets.shadow};
-    size_t n[ARBOR_SET_COUNT] = {b->sets.nprimary, b->sets.ndiffuse, b->sets.nshadow};
     for (int s = 0; s < ARBOR_SET_COUNT; s++) {
-        set_measure m = {b->pool, kernel, tracer, rays[s], n[s], s == ARBOR_SET_SHADOW, b->threads, {0, 0.0}};
-        if (n[s] == 0) {
+        size_t n;
+        const arbor_ray *rays = set_rays(&b->sets, s, &n);
+        set_measure m = {b->pool, kernel, tracer, rays, n, s == ARBOR_SET_SHADOW, b->threads, {0, 0.0}};
+        if (n == 0) {
             row->mrays[s] = 0.0;
             continue;
         }
@@ -247,20 +256,20 @@ static bool time_sets(const bench_run *b, arbor_trace_kernel kernel, const void 
  * same work the timed passes do. */
 static void count_sets(const bench_run *b, const arbor_accel *tree, arbor_bench_row *row)
 {
-    const arbor_ray *rays[ARBOR_SET_COUNT] = {b->sets.primary, b->sets.diffuse, b->sets.shadow};
-    size_t n[ARBOR_SET_COUNT] = {b->sets.nprimary, b->sets.ndiffuse, b->sets.nshadow};
     for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+        size_t n;
+        const arbor_ray *rays = set_rays(&b->sets, s, &n);
         arbor_trace_counts c = {0, 0};
-        for (size_t i = 0; i < n[s]; i++) {
-            arbor_ray r = rays[s][i];
+        for (size_t i = 0; i < n; i++) {
+            arbor_ray r = rays[i];
             arbor_hit h;
             if (s == ARBOR_SET_SHADOW)
                 arbor_accel_occluded_counted(tree, &r, &c);
             else
                 arbor_accel_intersect_counted(tree, &r, &h, &c);
         }
-        row->nodes_per_ray[s] = n[s] > 0 ? (double)c.nodes / (double)n[s] : 0.0;
-        row->tris_per_ray[s] = n[s] > 0 ? (double)c.tris / (double)n[s] : 0.0;
+        row->nodes_per_ray[s] = n > 0 ? (double)c.nodes / (double)n : 0.0;
+        row->tris_per_ray[s] = n > 0 ? (double)c.tris / (double)n : 0.0;
     }
 }
 
