@@ -404,6 +404,38 @@ static void test_axis_rays_on_box_planes(void)
     arbor_mesh_free(&m);
 }
 
+/* Rays with one direction component next to zero (subnormal, so that its
+ * inverse is infinite; 3e-38, so that the slab distances overflow; 1e-20;
+ * and 0), over a soup at x = 1000..1001: the slab test must neither lose a
+ * box the ray runs through nor enter the nodes' empty slots. */
+static void test_nearly_axis_rays_far_away(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    test_rng g;
+    test_rng_seed(&g, 12);
+    for (int i = 0; i < 600; i++) {
+        arbor_vec3 c = vec3(1000.0f + test_rng_float(&g), test_rng_float(&g), test_rng_float(&g));
+        float s = 0.01f + 0.1f * test_rng_float(&g);
+        add_tri(&m, vec3_add(c, random_point(&g, -s, s)), vec3_add(c, random_point(&g, -s, s)),
+                vec3_add(c, random_point(&g, -s, s)));
+    }
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    static const float tiny[] = {1e-39f, -1e-39f, 3e-38f, -3e-38f, 1e-20f, -1e-20f, 0.0f};
+    enum { N = 2100 };
+    static arbor_ray rays[N];
+    for (int i = 0; i < N; i++) {
+        arbor_vec3 v = m.verts[test_rng_u32(&g) % m.nverts];
+        arbor_vec3 d = vec3(tiny[i % 7], 0.6f, 0.8f);
+        if (i & 8)
+            d = vec3(tiny[i % 7], -0.8f, 0.6f);
+        arbor_ray r = {vec3_sub(v, vec3_scale(d, 3.0f)), 0.0f, d, INFINITY};
+        rays[i] = r;
+    }
+    check_builders(&m, rays, N, 1, "nearly axis rays");
+    arbor_mesh_free(&m);
+}
+
 static void test_tiny_and_huge(void)
 {
     arbor_mesh m;
@@ -781,6 +813,7 @@ int main(void)
     RUN_TEST(test_copies_of_one_triangle);
     RUN_TEST(test_one_plane);
     RUN_TEST(test_axis_rays_on_box_planes);
+    RUN_TEST(test_nearly_axis_rays_far_away);
     RUN_TEST(test_tiny_and_huge);
     RUN_TEST(test_deep_spatial_run_is_bounded);
     RUN_TEST(test_options);
