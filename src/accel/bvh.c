@@ -258,7 +258,7 @@ void bvh_walk(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user
         /* the last child deepest, so the first comes out first */
         const bvh_wide_node *n = &t->wide[bvh_ref_index(ref)];
         for (int c = BVH_WIDTH - 1; c >= 0; c--)
-            if (n->child[c] != 0) {
+            if (!bvh_slot_is_empty(n, c)) {
                 stack[sp].ref = n->child[c];
                 stack[sp].box = bvh_lane_box(n, c);
                 stack[sp++].depth = depth + 1;

@@ -27,7 +27,13 @@
  *
  *     inner child: the wide node's index (never 0, the root)
  *     leaf child:  BVH_REF_LEAF | first pack
- *     empty slot:  0, with an empty box (lo +inf, hi -inf) that no ray enters
+ *     empty slot:  BVH_REF_EMPTY, with an empty box (lo +inf, hi -inf)
+ *
+ * No ray with a finite origin and direction enters an empty box. One with
+ * NaN or infinite components may: its slab distances can be NaN on every
+ * axis, which the slab test ignores, so it enters every box. Such a ray
+ * hits nothing, and then tests the first leaf in vain (BVH_REF_EMPTY is a
+ * leaf reference to pack 0) rather than go back to the root forever.
  *
  * and 32 bytes unused, which keep a node whole cache lines. (A visiting
  * order per ray octant there measured slower than sorting the children
@@ -70,6 +76,7 @@ _Static_assert(sizeof(bvh_node) == 32, "a node is half a cache line");
 
 #define BVH_WIDTH 8
 #define BVH_REF_LEAF ((uint32_t)1 << 31)
+#define BVH_REF_EMPTY BVH_REF_LEAF
 #define BVH_PACK_LAST ((uint32_t)1 << 31)
 #define BVH_LANE_UNUSED UINT32_MAX
 
@@ -173,6 +180,13 @@ bool bvh_wide_validate(const bvh_tree *t, const arbor_mesh *m, arbor_err *e);
  * bytes, sah_cost under its own cost model). */
 void bvh_wide_stats(const bvh_tree *t, arbor_layout_stats *s);
 
+/* Whether slot c of wide node n is empty (no child). BVH_REF_EMPTY is
+ * also the first leaf's reference; only an empty slot has lo +inf. */
+static inline bool bvh_slot_is_empty(const bvh_wide_node *n, int c)
+{
+    return n->child[c] == BVH_REF_EMPTY && n->box[0][c] == INFINITY;
+}
+
 /* Child c's box in wide node n. */
 static inline arbor_aabb bvh_lane_box(const bvh_wide_node *n, int c)
 {
@@ -186,7 +200,7 @@ static inline arbor_aabb bvh_wide_box(const bvh_wide_node *n)
 {
     arbor_aabb b = {vec3(INFINITY, INFINITY, INFINITY), vec3(-INFINITY, -INFINITY, -INFINITY)};
     for (int c = 0; c < BVH_WIDTH; c++)
-        if (n->child[c] != 0) {
+        if (!bvh_slot_is_empty(n, c)) {
             arbor_aabb l = bvh_lane_box(n, c);
             b.lo = vec3_min(b.lo, l.lo);
             b.hi = vec3_max(b.hi, l.hi);

@@ -102,7 +102,9 @@ BVH_INLINE float box_bound(float tmax)
  * planes gives 0 * inf = NaN, and the slab then leaves the interval as it
  * was (the ray runs inside the plane). Returns the mask of children entered,
  * entry <= exit, and each one's entry distance in *entry. Empty slots
- * (lo +inf, hi -inf) give entry +inf and exit -inf on every axis. */
+ * (lo +inf, hi -inf) give entry +inf and exit -inf on every axis, for a
+ * ray with a finite origin and direction (bvh_internal.h says what becomes
+ * of the others). */
 BVH_INLINE int wide_boxes(const bvh_wide_node *n, const box_ray *q, vfloat tmax, vfloat *entry)
 {
     vfloat t_in = q->tmin, t_out = tmax;

@@ -368,7 +368,7 @@ static uint32_t fill_node(wide_ctx *x, const uint32_t *kids, int n)
             node->box[row][c] = k ? k->bounds[row] : INFINITY;
             node->box[row + 3][c] = k ? k->bounds[row + 3] : -INFINITY;
         }
-        node->child[c] = 0;
+        node->child[c] = BVH_REF_EMPTY;
         node->unused[c] = 0;
     }
     for (int c = 0; c < n; c++)
@@ -511,9 +511,11 @@ static bool check_wide_node(wide_check *k, uint32_t w, const arbor_aabb *parent,
     for (int c = 0; c < BVH_WIDTH; c++) {
         arbor_aabb box = bvh_lane_box(n, c);
         uint32_t ref = n->child[c];
-        if (ref == 0) {
-            if (box.lo.x != INFINITY || box.lo.y != INFINITY || box.lo.z != INFINITY || box.hi.x != -INFINITY ||
-                box.hi.y != -INFINITY || box.hi.z != -INFINITY)
+        if (box.lo.x == INFINITY) {
+            if (ref != BVH_REF_EMPTY)
+                return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh wide node %u: empty slot %d has child %#x", w, c, ref);
+            if (box.lo.y != INFINITY || box.lo.z != INFINITY || box.hi.x != -INFINITY || box.hi.y != -INFINITY ||
+                box.hi.z != -INFINITY)
                 return arbor_fail(k->e, ARBOR_ERR_INVALID, "bvh wide node %u: empty slot %d has a non-empty box", w, c);
             continue;
         }

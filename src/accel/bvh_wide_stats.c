@@ -39,7 +39,7 @@ static void add_node(wide_sums *x, uint32_t w, arbor_aabb box, uint32_t depth)
     const bvh_wide_node *n = &x->t->wide[w];
     for (int c = 0; c < BVH_WIDTH; c++) {
         uint32_t ref = n->child[c];
-        if (ref == 0)
+        if (bvh_slot_is_empty(n, c))
             continue;
         if (!bvh_ref_is_leaf(ref)) {
             add_node(x, bvh_ref_index(ref), bvh_lane_box(n, c), depth + 1);

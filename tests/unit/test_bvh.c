@@ -436,6 +436,36 @@ static void test_nearly_axis_rays_far_away(void)
     arbor_mesh_free(&m);
 }
 
+/* Rays with a NaN or infinite component in the origin or the direction,
+ * or a zero direction, among ordinary ones: they hit nothing, as in brute
+ * force, and must not hang or crash the traversal. Their slab distances
+ * can be NaN on every axis, which enters every box; the empty slots lead
+ * to a leaf for them (bvh_internal.h), where a root reference would loop
+ * until the stack overflows. */
+static void test_non_finite_rays(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 800, 13);
+    enum { N = 1200 };
+    arbor_ray *rays = test_random_rays(&m, N, 14);
+    const float bad[] = {NAN, INFINITY, -INFINITY};
+    for (int i = 0; i < N; i += 2) {
+        float *f[6] = {&rays[i].o.x, &rays[i].o.y, &rays[i].o.z, &rays[i].d.x, &rays[i].d.y, &rays[i].d.z};
+        int k = i / 2 % 8;
+        if (k < 6) {
+            *f[k] = bad[i / 16 % 3];
+        } else if (k == 6) {
+            for (int a = 3; a < 6; a++)
+                *f[a] = bad[i / 16 % 3];
+        } else {
+            rays[i].d = vec3(0.0f, 0.0f, 0.0f);
+        }
+    }
+    check_builders(&m, rays, N, 1, "non-finite rays");
+    free(rays);
+    arbor_mesh_free(&m);
+}
+
 static void test_tiny_and_huge(void)
 {
     arbor_mesh m;
@@ -695,7 +725,7 @@ static uint32_t first_wide_leaf(const bvh_tree *t, int *slot)
 {
     for (uint32_t w = 0;; w++)
         for (*slot = 0; *slot < BVH_WIDTH; ++*slot)
-            if (bvh_ref_is_leaf(t->wide[w].child[*slot]))
+            if (bvh_ref_is_leaf(t->wide[w].child[*slot]) && !bvh_slot_is_empty(&t->wide[w], *slot))
                 return w;
 }
 static void shrink_wide_leaf_box(bvh_tree *t, arbor_tree_stats *s)
@@ -814,6 +844,7 @@ int main(void)
     RUN_TEST(test_one_plane);
     RUN_TEST(test_axis_rays_on_box_planes);
     RUN_TEST(test_nearly_axis_rays_far_away);
+    RUN_TEST(test_non_finite_rays);
     RUN_TEST(test_tiny_and_huge);
     RUN_TEST(test_deep_spatial_run_is_bounded);
     RUN_TEST(test_options);
