@@ -29,15 +29,15 @@
  *     leaf child:  BVH_REF_LEAF | first pack
  *     empty slot:  BVH_REF_EMPTY, with an empty box (lo +inf, hi -inf)
  *
+ * and 32 bytes unused, which keep a node whole cache lines. (A visiting
+ * order per ray octant there measured slower than sorting the children
+ * entered by distance: docs/BENCH.md.)
+ *
  * No ray with a finite origin and direction enters an empty box. One with
  * NaN or infinite components may: its slab distances can be NaN on every
  * axis, which the slab test ignores, so it enters every box. Such a ray
  * hits nothing, and then tests the first leaf in vain (BVH_REF_EMPTY is a
  * leaf reference to pack 0) rather than go back to the root forever.
- *
- * and 32 bytes unused, which keep a node whole cache lines. (A visiting
- * order per ray octant there measured slower than sorting the children
- * entered by distance: docs/BENCH.md.)
  *
  * A pack is BVH_WIDTH triangles' vertices and their mesh indices, 5 cache
  * lines. A leaf's triangles fill its packs in order; the last pack's unused
