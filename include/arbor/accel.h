@@ -136,7 +136,9 @@ const char *arbor_accel_kernel_name(void);
  * only while the build runs. */
 arbor_accel *arbor_accel_build(const arbor_mesh *m, const arbor_build_opts *o, arbor_err *e);
 
-/* Closest hit in (r->tmin, r->tmax); on a hit shrinks r->tmax and fills h. */
+/* Closest hit in (r->tmin, r->tmax); on a hit shrinks r->tmax and fills h.
+ * Every query takes any ray: one with a NaN or infinite component, or a
+ * zero direction, hits what brute force says (nothing, for the former). */
 bool arbor_accel_intersect(const arbor_accel *a, arbor_ray *r, arbor_hit *h);
 /* The same, also adding the work done to *c. */
 bool arbor_accel_intersect_counted(const arbor_accel *a, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);

@@ -205,6 +205,44 @@ static void test_random_soup_10k(void)
     arbor_mesh_free(&m);
 }
 
+/* Rays with a NaN or infinite component in the origin or the direction,
+ * or a zero direction, every other ray of the set: every tree answers them
+ * as brute force does (no hit for the non-finite ones), and none may hang
+ * or crash on them. A BVH ray whose slab distances are NaN on every axis
+ * enters every box, empty slots included (bvh_internal.h). */
+static void test_degenerate_rays(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 2000, 13);
+    enum { N = 1600 };
+    arbor_ray *rays = test_random_rays(&m, N, 14);
+    const float bad[] = {NAN, INFINITY, -INFINITY};
+    for (int i = 0; i < N; i += 2) {
+        float *f[6] = {&rays[i].o.x, &rays[i].o.y, &rays[i].o.z, &rays[i].d.x, &rays[i].d.y, &rays[i].d.z};
+        int k = i / 2 % 8;
+        if (k < 6) {
+            *f[k] = bad[i / 16 % 3];
+        } else if (k == 6) {
+            for (int a = 3; a < 6; a++)
+                *f[a] = bad[i / 16 % 3];
+        } else {
+            rays[i].d = vec3(0.0f, 0.0f, 0.0f);
+        }
+    }
+    test_truth ts;
+    test_truth_compute(&ts, &m, rays, N);
+    size_t hits = 0, odd_hits = 0;
+    for (size_t i = 0; i < ts.n; i++) {
+        hits += ts.found[i];
+        odd_hits += ts.found[i] && i % 2 == 0;
+    }
+    TEST_ASSERT_TRUE_MESSAGE(hits > N / 10, "too few of the ordinary rays hit the soup");
+    TEST_ASSERT_EQUAL_MESSAGE(0, odd_hits, "brute force hit with a non-finite or zero-direction ray");
+    check_all_trees("degenerate rays", &m, &ts, &ts);
+    test_truth_free(&ts);
+    arbor_mesh_free(&m);
+}
+
 /* Rays from inside a closed mesh aimed exactly through its vertices and edge
  * midpoints: where a triangle test's edge functions come out exactly zero and
  * the watertight test decides in double precision (which the BVH's four-lane
@@ -426,6 +464,7 @@ int main(void)
     RUN_TEST(test_bunny);
     RUN_TEST(test_own_models);
     RUN_TEST(test_rays_through_vertices_and_edges);
+    RUN_TEST(test_degenerate_rays);
     RUN_TEST(test_pool_size_does_not_change_the_tree);
     RUN_TEST(test_build_cancelled_before_it_starts);
     RUN_TEST(test_build_cancelled_while_running);
