@@ -168,6 +168,13 @@ static arbor_vec3 random_point(test_rng *g, float lo, float hi)
                 lo + (hi - lo) * test_rng_float(g));
 }
 
+/* A triangle of three random points within s of c on every axis. */
+static void add_tri_near(arbor_mesh *m, test_rng *g, arbor_vec3 c, float s)
+{
+    arbor_vec3 a = vec3_add(c, random_point(g, -s, s)), b = vec3_add(c, random_point(g, -s, s));
+    add_tri(m, a, b, vec3_add(c, random_point(g, -s, s)));
+}
+
 static void test_random_soups(void)
 {
     static const uint32_t sizes[] = {40, 300, 3000};
@@ -418,8 +425,7 @@ static void test_nearly_axis_rays_far_away(void)
     for (int i = 0; i < 600; i++) {
         arbor_vec3 c = vec3(1000.0f + test_rng_float(&g), test_rng_float(&g), test_rng_float(&g));
         float s = 0.01f + 0.1f * test_rng_float(&g);
-        add_tri(&m, vec3_add(c, random_point(&g, -s, s)), vec3_add(c, random_point(&g, -s, s)),
-                vec3_add(c, random_point(&g, -s, s)));
+        add_tri_near(&m, &g, c, s);
     }
     TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
     static const float tiny[] = {1e-39f, -1e-39f, 3e-38f, -3e-38f, 1e-20f, -1e-20f, 0.0f};
@@ -446,8 +452,7 @@ static void test_tiny_and_huge(void)
     for (int i = 0; i < 1500; i++) {
         arbor_vec3 c = random_point(&g, -100.0f, 100.0f);
         float s = i % 3 == 0 ? 1e3f : 1e-4f;
-        add_tri(&m, vec3_add(c, random_point(&g, -s, s)), vec3_add(c, random_point(&g, -s, s)),
-                vec3_add(c, random_point(&g, -s, s)));
+        add_tri_near(&m, &g, c, s);
     }
     TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
     check_mesh(&m, 4000, "tiny and huge");
