@@ -231,13 +231,13 @@ static void test_degenerate_rays(void)
     }
     test_truth ts;
     test_truth_compute(&ts, &m, rays, N);
-    size_t hits = 0, odd_hits = 0;
+    size_t hits = 0, degenerate_hits = 0;
     for (size_t i = 0; i < ts.n; i++) {
         hits += ts.found[i];
-        odd_hits += ts.found[i] && i % 2 == 0;
+        degenerate_hits += ts.found[i] && i % 2 == 0;
     }
     TEST_ASSERT_TRUE_MESSAGE(hits > N / 10, "too few of the ordinary rays hit the soup");
-    TEST_ASSERT_EQUAL_MESSAGE(0, odd_hits, "brute force hit with a non-finite or zero-direction ray");
+    TEST_ASSERT_EQUAL_MESSAGE(0, degenerate_hits, "brute force hit with a non-finite or zero-direction ray");
     check_all_trees("degenerate rays", &m, &ts, &ts);
     test_truth_free(&ts);
     arbor_mesh_free(&m);
