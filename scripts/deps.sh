@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Installs what arbor needs to build and test on Debian (run as root):
-# the -dev packages it links against, the tools the HTTP and load tests use,
-# and Unity, the C unit test framework, unpacked from Debian's cJSON source
-# package (Unity is not packaged as a library). Quick and silent when
-# everything is already present.
+# the -dev packages it links against, the tools the HTTP, load and cluster
+# tests use (nginx among them), and Unity, the C unit test framework,
+# unpacked from Debian's cJSON source package (Unity is not packaged as a
+# library). Quick and silent when everything is already present.
 #
 #   scripts/deps.sh            build + test dependencies
 #   scripts/deps.sh --embree   also Intel Embree, the benchmark peer
@@ -68,9 +68,10 @@ main() {
 
     root=$(cd "$(dirname "$0")/.." && pwd)
     unity_dir="$root/build/deps/unity"
-    # build, then the HTTP tests (python3, prometheus client, curl) and load tests (wrk)
+    # build, then the HTTP tests (python3, prometheus client, curl), load tests (wrk)
+    # and cluster tests (nginx in front, network namespaces by ip: tests/cluster)
     pkgs=(build-essential pkg-config libmicrohttpd-dev libcjson-dev libpng-dev zlib1g-dev
-          python3 python3-prometheus-client curl wrk)
+          python3 python3-prometheus-client curl wrk nginx iproute2)
     for arg in "$@"; do
         case "$arg" in
             --embree) pkgs+=(libembree-dev) ;;

@@ -293,7 +293,7 @@ def why_not():
     if os.geteuid() != 0:
         return "needs root for network namespaces (ip netns add)"
     if not os.path.exists("/usr/sbin/nginx"):
-        return "needs Debian's nginx (apt-get install nginx; deploy/cluster.sh installs it)"
+        return "needs Debian's nginx (scripts/deps.sh, run by make, installs it)"
     if not os.access(harness.ARBORD, os.X_OK):
         return "no executable %s" % harness.ARBORD
     probe = "arbor-probe-%d" % os.getpid()
