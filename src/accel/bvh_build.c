@@ -23,7 +23,7 @@
  *   mean     the mean centroid on that axis;
  *   sah      binned SAH (Wald, "On fast Construction of SAH-based Bounding
  *            Volume Hierarchies", 2007): centroids fall into BVH_SAH_BINS
- *            bins per axis (fewer for small nodes, but at least 16), the
+ *            bins per axis (fewer for small nodes, but at least 8), the
  *            cost of each plane between bins is evaluated from prefix and
  *            suffix sums of the bins, and the cheapest plane wins (nodes of
  *            two triangles are decided directly, and nodes of at most
@@ -75,7 +75,15 @@
 #define BVH_SIMPLE_LEAF 4
 #define BVH_SAH_LEAF 8
 #define BVH_SAH_BINS 32
-#define BVH_SAH_MIN_BINS 16
+#define BVH_SAH_MIN_BINS 8
+/* A bin per 4 triangles, against the rule before (a bin per triangle, at
+ * least 16 and at most 32, so nodes of 17 to 127 triangles now have fewer):
+ * at 1 thread, medians of 11 builds (dragon 5) of arbor_accel_build in a
+ * loop, two rounds alternating with the parent, bunny 24.4 and 27.8 -> 22.2
+ * and 21.8 ms, dragon 373 and 411 -> 330 and 330; the wide trees' SAH cost
+ * 0.05-0.8% more (castle 10.31 -> 10.39, sponza 18.67 -> 18.80, dragon
+ * 15.011 -> 15.020), their rays within the VM's noise (docs/BENCH.md). */
+#define BVH_SAH_TRIS_PER_BIN 4
 #define BVH_SAH_EXACT_TRIS 16
 #define BVH_COST_TRAVERSE 1.0f
 #define BVH_COST_INTERSECT 1.0f
@@ -524,15 +532,18 @@ static bool sah_stays_leaf(const bvh_builder *B, float area, double split_an, ui
  * Ct A(n) + Ci (A(l) N(l) + A(r) N(r)) against Ci A(n) N(n) (the usual one
  * multiplied through by A(n), so flat nodes need no division), and if so
  * partitions there (*m: where the right side starts; b or e when no plane
- * has triangles on both sides). Nodes of fewer than BVH_SAH_BINS triangles
- * use as many bins as they have triangles, but at least BVH_SAH_MIN_BINS:
- * more would be mostly empty. */
+ * has triangles on both sides). A node gets a bin per BVH_SAH_TRIS_PER_BIN
+ * triangles, between BVH_SAH_MIN_BINS and BVH_SAH_BINS: clearing and
+ * sweeping a bin costs about as much as binning a few triangles, so nodes
+ * of 17 to a few hundred triangles spent most of their time on bins,
+ * mostly empty, when they had one per triangle (at least 16) or 32. */
 static bool sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, float area,
                       const build_box *cbox, range_box kids[2], uint32_t *m)
 {
     uint32_t n = e - b;
     bin_grid g;
-    g.nbins = n < BVH_SAH_BINS ? (n > BVH_SAH_MIN_BINS ? n : BVH_SAH_MIN_BINS) : BVH_SAH_BINS;
+    uint32_t nbins = n / BVH_SAH_TRIS_PER_BIN;
+    g.nbins = nbins < BVH_SAH_MIN_BINS ? BVH_SAH_MIN_BINS : nbins > BVH_SAH_BINS ? BVH_SAH_BINS : nbins;
     float lo[4], hi[4], scale[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     _mm_storeu_ps(lo, cbox->lo);
     _mm_storeu_ps(hi, cbox->hi);
