@@ -534,9 +534,8 @@ static bool sah_stays_leaf(const bvh_builder *B, float area, double split_an, ui
  * partitions there (*m: where the right side starts; b or e when no plane
  * has triangles on both sides). A node gets a bin per BVH_SAH_TRIS_PER_BIN
  * triangles, between BVH_SAH_MIN_BINS and BVH_SAH_BINS: clearing and
- * sweeping a bin costs about as much as binning a few triangles, so nodes
- * of 17 to a few hundred triangles spent most of their time on bins,
- * mostly empty, when they had one per triangle (at least 16) or 32. */
+ * sweeping a bin costs about as much as binning a few triangles, so small
+ * nodes given a bin per triangle spent most of their time on empty bins. */
 static bool sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, float area,
                       const build_box *cbox, range_box kids[2], uint32_t *m)
 {
