@@ -100,6 +100,11 @@ typedef struct {
  * as p has, or 1 when p is NULL). */
 void arbor_pool_budget_init(arbor_pool_budget *b, const arbor_pool *p, uint32_t threads);
 
+/* The threads b has spare at this moment: a hint (another thread may take
+ * or give one back at once), for work that is laid out better when it
+ * knows whether a loop is likely to run on the caller alone. */
+int arbor_pool_budget_spare(const arbor_pool_budget *b);
+
 /* Runs fn(ctx, i) for every i in [0, n) on the caller and idle workers of p
  * within budget b, and returns when all have returned. Cannot fail: what no
  * helper takes runs on the caller. b must outlive the call only. */

@@ -317,6 +317,11 @@ void arbor_pool_budget_init(arbor_pool_budget *b, const arbor_pool *p, uint32_t 
     b->helpers = (int)threads - 1;
 }
 
+int arbor_pool_budget_spare(const arbor_pool_budget *b)
+{
+    return atomic_load_explicit(&b->spare, memory_order_relaxed);
+}
+
 static bool budget_take(arbor_pool_budget *b)
 {
     int spare = atomic_load_explicit(&b->spare, memory_order_relaxed);

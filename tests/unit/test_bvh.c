@@ -638,15 +638,20 @@ static void test_parallel_build_matches_serial(void)
     arbor_mesh_free(&m);
 }
 
-/* The collapse on two threads (its plan cut into subtrees planned at once,
- * its packs filled in two halves) writes the very wide tree the serial one
- * does, byte for byte: nodes, packs, their order and padding. */
+/* The build on two threads writes the very binary tree the serial one
+ * does, byte for byte, whether a fork's right subtree was built in place or
+ * moved there; and the collapse on two threads (its plan cut into subtrees
+ * planned at once, its packs filled in two halves) the very wide tree:
+ * nodes, packs, their order and padding. */
 static void test_parallel_collapse_matches_serial(void)
 {
     arbor_mesh m;
     test_random_soup(&m, 70000, 16);
     arbor_tree_stats s;
     bvh_tree *t[2] = {build_sah_tree(&m, 1, &s), build_sah_tree(&m, 2, &s)};
+    TEST_ASSERT_EQUAL_UINT32(t[0]->nnodes, t[1]->nnodes);
+    TEST_ASSERT_EQUAL_MEMORY(t[0]->nodes, t[1]->nodes, t[0]->nnodes * sizeof(bvh_node));
+    TEST_ASSERT_EQUAL_MEMORY(t[0]->tri_index, t[1]->tri_index, t[0]->ntris * sizeof(uint32_t));
     TEST_ASSERT_TRUE(t[0]->nwide > 1000);
     TEST_ASSERT_EQUAL_UINT32(t[0]->nwide, t[1]->nwide);
     TEST_ASSERT_EQUAL_UINT32(t[0]->npacks, t[1]->npacks);
