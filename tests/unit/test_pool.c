@@ -483,15 +483,20 @@ static void test_budget_limits_a_whole_nest(void)
     for (uint32_t threads = 1; threads <= 3; threads++) {
         arbor_pool_budget b;
         arbor_pool_budget_init(&b, p, threads);
+        TEST_ASSERT_EQUAL_INT((int)threads - 1, arbor_pool_budget_spare(&b));
         nest *n = calloc(1, sizeof *n);
         n->pool = p;
         n->budget = &b;
         nest_run(n, 0, 0);
         assert_every_leaf_once(n);
         TEST_ASSERT_TRUE(atomic_load(&n->most_running) <= (int)threads);
-        TEST_ASSERT_EQUAL_INT((int)threads - 1, atomic_load(&b.spare));
+        TEST_ASSERT_EQUAL_INT((int)threads - 1, arbor_pool_budget_spare(&b));
         free(n);
     }
+    /* without a pool, and without a thread count, the caller alone */
+    arbor_pool_budget alone;
+    arbor_pool_budget_init(&alone, NULL, 0);
+    TEST_ASSERT_EQUAL_INT(0, arbor_pool_budget_spare(&alone));
     arbor_pool_destroy(p);
 }
 
