@@ -38,9 +38,10 @@
  * counter itself; a helper job of up to max_threads - 1 tasks lets idle
  * workers take indices from the same counter. When the counter runs out the
  * caller waits only for the indices helpers are running, then cancels the
- * helper tasks that have not started. Which thread runs which index is
- * unspecified: results must not depend on it. Without a pool (p NULL), or
- * when the helper job cannot be made, every index runs on the caller.
+ * helper tasks that have not started. Indices are claimed in ascending
+ * order; which thread runs which index is unspecified: results must not
+ * depend on it. Without a pool (p NULL), or when the helper job cannot be
+ * made, every index runs on the caller.
  *
  * A budget limits the threads a whole piece of work keeps busy at once,
  * across every loop nested inside it (a tree build: at most opts.threads

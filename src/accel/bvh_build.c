@@ -92,9 +92,11 @@
 /* A node forks into a parallel pair only if it has this many triangles, and
  * only in the top levels: enough levels that uneven splits still leave work
  * for every thread (about eight parts per thread), no more, since a fork
- * whose sides run at once moves its right subtree once built. Median of 9 builds at 2 threads, 2 ->
- * 3 levels: dragon 209 -> 199-203 ms, sponza and bunny unchanged; 4 levels
- * made sponza's 3% slower. */
+ * costs a loop on the pool and may move its right subtree. Median of 9
+ * builds at 2 threads, when every fork moved it: 2 -> 3 levels, dragon 209
+ * -> 199-203 ms, sponza and bunny unchanged; 4 levels, sponza 3% slower.
+ * Since forks mostly build in place (862024e), 4 and 5 levels measured
+ * within noise of 3 on bunny and sponza. */
 #define BVH_FORK_MIN_TRIS 8192
 #define BVH_FORK_EXTRA_LEVELS 3
 /* Top-level nodes of at least BVH_PARALLEL_PASS_TRIS (bvh_internal.h) bin
@@ -824,30 +826,32 @@ static void move_subtree(bvh_node *nodes, uint32_t from, uint32_t to, uint32_t c
 }
 
 /* The two children of a forking node: side[0] the left, side[1] the
- * right; order[i], the side the i-th claim of the loop builds (the loop
- * hands its indices out in claim order). The right side's slot is chosen
- * when it is claimed: next to the left subtree when that is finished
- * (left_used, released by the left's task: its node count + 1, 0 before),
- * else the slot the left's worst case leaves free. */
+ * right; the loop's index i (indices are claimed in ascending order) builds
+ * side[i ^ right_first]. The right side's slot is chosen when it is
+ * claimed: next to the left subtree if that is finished, else the slot the
+ * left's worst case leaves free. left_nodes: the left subtree's node count,
+ * released by its task once built (0 before: a subtree has a node at
+ * least); acquired by the right's, which may then reuse slots the left's
+ * own forks wrote before they compacted. */
 typedef struct {
     build_task side[2];
-    int order[2];
-    atomic_uint left_used;
+    int right_first;
+    atomic_uint left_nodes;
 } fork_pair;
 
-/* Claim number `i` of the fork_pair `pair`. */
+/* Index `i` of the fork_pair `pair`. */
 static void fork_pair_run(void *pair, uint32_t i)
 {
     fork_pair *f = pair;
-    build_task *t = &f->side[f->order[i]];
-    if (f->order[i] == 0) {
+    build_task *t = &f->side[i ^ (uint32_t)f->right_first];
+    if (t == &f->side[0]) {
         t->used = build_subtree(t->B, t->slot, t->begin, t->end, t->depth, &t->bounds, &t->tally);
-        atomic_store_explicit(&f->left_used, t->used + 1, memory_order_release);
+        atomic_store_explicit(&f->left_nodes, t->used, memory_order_release);
         return;
     }
-    uint32_t left_used = atomic_load_explicit(&f->left_used, memory_order_acquire);
-    if (left_used > 0)
-        t->slot = f->side[0].slot + left_used - 1;
+    uint32_t left_nodes = atomic_load_explicit(&f->left_nodes, memory_order_acquire);
+    if (left_nodes > 0)
+        t->slot = f->side[0].slot + left_nodes;
     t->used = build_subtree(t->B, t->slot, t->begin, t->end, t->depth, &t->bounds, &t->tally);
 }
 
@@ -856,25 +860,26 @@ static void fork_pair_run(void *pair, uint32_t i)
 static uint32_t build_children_parallel(const bvh_builder *B, uint32_t s, uint32_t b, uint32_t m, uint32_t e,
                                         uint32_t depth, const range_box kids[2], bvh_tally *tally)
 {
-    /* The left subtree uses at most 2 (m - b) - 1 slots. When a thread is
-     * spare, the larger side is claimed first, normally by the calling
-     * thread: it then waits at the join only for the smaller, whose helper
-     * goes back to the pool when done, free to take the larger side's own
-     * forks (a caller done first would wait idle instead). Median of 5
-     * builds at 2 threads: sponza 14.4 -> 13.3 ms, bunny 15.3 -> 15.0,
-     * dragon 220 -> 218. When none is, the caller most likely builds both,
-     * so the left goes first and the right is then built in place: a right
-     * subtree built before the left is finished has to be moved next to it
-     * afterwards, which at 2 threads moved 1.6 times the tree's nodes
-     * (mostly onto fresh pages): 7% of bunny's build, 6.5% of dragon's. */
+    /* The left subtree uses at most 2 (m - b) - 1 slots. When the budget
+     * has a thread spare, the larger side is claimed first, normally by the
+     * calling thread: it then waits at the join only for the smaller, whose
+     * helper goes back to the pool when done, free to take the larger
+     * side's own forks (a caller done first would wait idle instead).
+     * Median of 5 builds at 2 threads: sponza 14.4 -> 13.3 ms, bunny 15.3
+     * -> 15.0, dragon 220 -> 218. When it has none, the caller most likely
+     * builds both, so the left goes first and the right is then built in
+     * place. (A right subtree built before the left is finished is moved
+     * next to it afterwards; before 862024e every fork's was, at 2 threads
+     * 1.6 times the tree's nodes, mostly onto fresh pages: 7% of bunny's
+     * build, 6.5% of dragon's.) The hint counts the build's threads, not
+     * the pool's idle workers: on a pool busy with other work a larger
+     * right side may still go first on one thread, and be moved. */
     bool spare = arbor_pool_budget_spare(&B->run->budget) > 0;
-    bool right_first = spare && e - m > m - b;
     fork_pair f;
     f.side[0] = (build_task){B, s + 1, b, m, depth + 1, kids[0], {0}, 0};
     f.side[1] = (build_task){B, s + 2 * (m - b), m, e, depth + 1, kids[1], {0}, 0};
-    f.order[0] = right_first;
-    f.order[1] = !right_first;
-    atomic_init(&f.left_used, 0);
+    f.right_first = spare && e - m > m - b;
+    atomic_init(&f.left_nodes, 0);
     accel_parallel(B->run, 2, fork_pair_run, &f);
     const build_task *left = &f.side[0], *right = &f.side[1];
     uint32_t right_slot = s + 1 + left->used;

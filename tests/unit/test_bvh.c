@@ -643,7 +643,7 @@ static void test_parallel_build_matches_serial(void)
  * moved there; and the collapse on two threads (its plan cut into subtrees
  * planned at once, its packs filled in two halves) the very wide tree:
  * nodes, packs, their order and padding. */
-static void test_parallel_collapse_matches_serial(void)
+static void test_parallel_trees_match_serial(void)
 {
     arbor_mesh m;
     test_random_soup(&m, 70000, 16);
@@ -659,6 +659,54 @@ static void test_parallel_collapse_matches_serial(void)
     TEST_ASSERT_EQUAL_MEMORY(t[0]->packs, t[1]->packs, t[0]->npacks * sizeof(bvh_tri_pack));
     for (int k = 0; k < 2; k++)
         arbor_bvh_ops.destroy(t[k]);
+    arbor_mesh_free(&m);
+}
+
+/* Counts in larger[0] the nodes of t's top `levels` levels with at least
+ * min_tris triangles whose left side is at least as large as the right,
+ * in larger[1] those whose right side is larger. */
+static void count_forks(const bvh_tree *t, uint32_t i, uint32_t levels, uint32_t min_tris, uint32_t larger[2])
+{
+    const bvh_node *n = &t->nodes[i];
+    if (n->count > 0 || levels == 0 || subtree_tris(t, i) < min_tris)
+        return;
+    larger[subtree_tris(t, n->index) > subtree_tris(t, i + 1)]++;
+    count_forks(t, i + 1, levels - 1, min_tris, larger);
+    count_forks(t, n->index, levels - 1, min_tris, larger);
+}
+
+/* A build of two threads whose forks run both sides on the calling thread,
+ * in order (no pool; the budget's spare thread is never taken): a fork
+ * whose right side is larger builds it first, where the left's worst case
+ * leaves room, and moves it next to the left afterwards; any other builds
+ * the left first and the right in place after it. Either way the binary
+ * tree is the serial build's, byte for byte, with no timing involved. */
+static void test_fork_placement_matches_serial(void)
+{
+    arbor_mesh m;
+    test_random_soup(&m, 70000, 16);
+    arbor_tree_stats s;
+    bvh_tree *serial = build_sah_tree(&m, 1, &s);
+    /* both kinds of fork happen: at 2 threads the build forks nodes of at
+     * least 8192 triangles in its top 4 levels (bvh_build.c) */
+    uint32_t larger[2] = {0, 0};
+    count_forks(serial, 0, 4, 8192, larger);
+    TEST_ASSERT_TRUE(larger[0] > 0 && larger[1] > 0);
+    arbor_build_opts o;
+    arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
+    o.threads = 2;
+    accel_run run = {.pool = NULL, .threads = 2, .cancel = NULL};
+    arbor_pool_budget_init(&run.budget, NULL, 2);
+    atomic_init(&run.stopped, false);
+    arbor_err e;
+    bvh_tree *forked = arbor_bvh_ops.build(&m, &o, &run, &s, &e);
+    TEST_ASSERT_NOT_NULL_MESSAGE(forked, e.msg);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(forked, &m, &s, &e), e.msg);
+    TEST_ASSERT_EQUAL_UINT32(serial->nnodes, forked->nnodes);
+    TEST_ASSERT_EQUAL_MEMORY(serial->nodes, forked->nodes, serial->nnodes * sizeof(bvh_node));
+    TEST_ASSERT_EQUAL_MEMORY(serial->tri_index, forked->tri_index, serial->ntris * sizeof(uint32_t));
+    arbor_bvh_ops.destroy(serial);
+    arbor_bvh_ops.destroy(forked);
     arbor_mesh_free(&m);
 }
 
@@ -836,6 +884,7 @@ int main(void)
     RUN_TEST(test_galleon);
     RUN_TEST(test_castle);
     RUN_TEST(test_bunny_two_threads);
-    RUN_TEST(test_parallel_collapse_matches_serial);
+    RUN_TEST(test_parallel_trees_match_serial);
+    RUN_TEST(test_fork_placement_matches_serial);
     return UNITY_END();
 }
