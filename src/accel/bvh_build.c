@@ -844,15 +844,13 @@ static void fork_pair_run(void *pair, uint32_t i)
 {
     fork_pair *f = pair;
     build_task *t = &f->side[i ^ (uint32_t)f->right_first];
-    if (t == &f->side[0]) {
-        t->used = build_subtree(t->B, t->slot, t->begin, t->end, t->depth, &t->bounds, &t->tally);
-        atomic_store_explicit(&f->left_nodes, t->used, memory_order_release);
-        return;
-    }
-    uint32_t left_nodes = atomic_load_explicit(&f->left_nodes, memory_order_acquire);
+    bool left = t == &f->side[0];
+    uint32_t left_nodes = left ? 0 : atomic_load_explicit(&f->left_nodes, memory_order_acquire);
     if (left_nodes > 0)
         t->slot = f->side[0].slot + left_nodes;
     t->used = build_subtree(t->B, t->slot, t->begin, t->end, t->depth, &t->bounds, &t->tally);
+    if (left)
+        atomic_store_explicit(&f->left_nodes, t->used, memory_order_release);
 }
 
 /* Builds the children of inner node s over prims[b, m) and prims[m, e), with

@@ -638,6 +638,14 @@ static void test_parallel_build_matches_serial(void)
     arbor_mesh_free(&m);
 }
 
+/* Asserts that binary trees a and b are the same, byte for byte. */
+static void assert_same_binary_tree(const bvh_tree *a, const bvh_tree *b)
+{
+    TEST_ASSERT_EQUAL_UINT32(a->nnodes, b->nnodes);
+    TEST_ASSERT_EQUAL_MEMORY(a->nodes, b->nodes, a->nnodes * sizeof(bvh_node));
+    TEST_ASSERT_EQUAL_MEMORY(a->tri_index, b->tri_index, a->ntris * sizeof(uint32_t));
+}
+
 /* The build on two threads writes the very binary tree the serial one
  * does, byte for byte, whether a fork's right subtree was built in place or
  * moved there; and the collapse on two threads (its plan cut into subtrees
@@ -649,9 +657,7 @@ static void test_parallel_trees_match_serial(void)
     test_random_soup(&m, 70000, 16);
     arbor_tree_stats s;
     bvh_tree *t[2] = {build_sah_tree(&m, 1, &s), build_sah_tree(&m, 2, &s)};
-    TEST_ASSERT_EQUAL_UINT32(t[0]->nnodes, t[1]->nnodes);
-    TEST_ASSERT_EQUAL_MEMORY(t[0]->nodes, t[1]->nodes, t[0]->nnodes * sizeof(bvh_node));
-    TEST_ASSERT_EQUAL_MEMORY(t[0]->tri_index, t[1]->tri_index, t[0]->ntris * sizeof(uint32_t));
+    assert_same_binary_tree(t[0], t[1]);
     TEST_ASSERT_TRUE(t[0]->nwide > 1000);
     TEST_ASSERT_EQUAL_UINT32(t[0]->nwide, t[1]->nwide);
     TEST_ASSERT_EQUAL_UINT32(t[0]->npacks, t[1]->npacks);
@@ -702,9 +708,7 @@ static void test_fork_placement_matches_serial(void)
     bvh_tree *forked = arbor_bvh_ops.build(&m, &o, &run, &s, &e);
     TEST_ASSERT_NOT_NULL_MESSAGE(forked, e.msg);
     TEST_ASSERT_TRUE_MESSAGE(arbor_bvh_ops.validate(forked, &m, &s, &e), e.msg);
-    TEST_ASSERT_EQUAL_UINT32(serial->nnodes, forked->nnodes);
-    TEST_ASSERT_EQUAL_MEMORY(serial->nodes, forked->nodes, serial->nnodes * sizeof(bvh_node));
-    TEST_ASSERT_EQUAL_MEMORY(serial->tri_index, forked->tri_index, serial->ntris * sizeof(uint32_t));
+    assert_same_binary_tree(serial, forked);
     arbor_bvh_ops.destroy(serial);
     arbor_bvh_ops.destroy(forked);
     arbor_mesh_free(&m);
