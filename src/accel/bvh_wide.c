@@ -327,12 +327,43 @@ typedef struct {
     uint32_t b, e;
 } pack_pass;
 
+/* How far ahead of the pack being filled its sources are prefetched: a
+ * lane's vertices are two loads away from tri_index (its triangle's corner
+ * indices, then the corners), at places leaf order makes random in the
+ * mesh's arrays. The corner indices are fetched PACK_AHEAD_INDICES packs
+ * ahead, the corners, through indices by then in cache,
+ * PACK_AHEAD_VERTICES ahead (1 thread, medians of 20 builds, bunny's pass
+ * 3.0 -> 2.1 ms, sponza's 1.6 -> 1.3, dragon's 38 -> 29 of 5: the stalls
+ * on those loads were most of its time outside the kernel). */
+#define PACK_AHEAD_INDICES 8
+#define PACK_AHEAD_VERTICES 4
+
+/* Prefetches the corner indices (corners false) or the corners of the
+ * triangles of pack p, if the pass has it. */
+static void prefetch_pack_sources(const pack_pass *pp, uint32_t p, bool corners)
+{
+    if (p >= pp->e)
+        return;
+    const pack_record *rec = &pp->records[p];
+    for (uint32_t lane = 0; lane < rec->lanes; lane++) {
+        const uint32_t *iv = pp->m->tri_verts + 3 * (size_t)pp->t->tri_index[rec->first + lane];
+        if (!corners) {
+            __builtin_prefetch(iv);
+            continue;
+        }
+        for (int k = 0; k < 3; k++)
+            __builtin_prefetch(&pp->m->verts[iv[k]]);
+    }
+}
+
 /* Pass number `i` of the array `passes`. */
 static void fill_packs(void *passes, uint32_t i)
 {
     const pack_pass *pp = (const pack_pass *)passes + i;
     arbor_prefault(&pp->t->packs[pp->b], (size_t)(pp->e - pp->b) * sizeof(bvh_tri_pack));
     for (uint32_t p = pp->b; p < pp->e; p++) {
+        prefetch_pack_sources(pp, p + PACK_AHEAD_INDICES, false);
+        prefetch_pack_sources(pp, p + PACK_AHEAD_VERTICES, true);
         const pack_record *rec = &pp->records[p];
         bvh_tri_pack *pack = &pp->t->packs[p];
         for (int lane = 0; lane < BVH_WIDTH; lane++) {
