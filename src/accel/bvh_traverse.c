@@ -242,15 +242,17 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                     /* the nearest lane, the lowest triangle index on a tie;
                      * a lane at t == tmax wins only with a lower index than
                      * the best's (the test admits t up to limit for that) */
+                    tri_pack_lanes lanes;
+                    tri_pack_lanes_of(&ph, &lanes);
                     for (; hits != 0; hits &= hits - 1) {
                         int l = __builtin_ctz(hits);
-                        float tl = ph.t[l];
+                        float tl = lanes.t[l];
                         uint32_t tri = pack->tri[l] & ~BVH_PACK_LAST;
                         if (tl < tmax || (tl == tmax && tri < hit_tri)) {
                             tmax = tl;
                             hit_tri = tri;
-                            hit_u = ph.v[l] * ph.inv[l];
-                            hit_v = ph.w[l] * ph.inv[l];
+                            hit_u = lanes.v[l] * lanes.inv[l];
+                            hit_v = lanes.w[l] * lanes.inv[l];
                         }
                     }
                     limit = nextafterf(tmax, INFINITY);

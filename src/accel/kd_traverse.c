@@ -226,11 +226,13 @@ static inline __attribute__((always_inline)) bool kd_trace(const kd_tree *tree, 
                     continue;
                 if (any_hit)
                     return true;
+                tri_pack_lanes lanes;
+                tri_pack_lanes_of(&ph, &lanes);
                 for (; hits != 0; hits &= hits - 1) {
                     int l = __builtin_ctz((unsigned)hits);
-                    if (ph.t[l] < limit)
-                        kd_keep_hit(tris[i + (uint32_t)l], ph.t[l], ph.v[l] * ph.inv[l], ph.w[l] * ph.inv[l], &best,
-                                    &best_u, &best_v, &best_tri, &limit, &stop);
+                    if (lanes.t[l] < limit)
+                        kd_keep_hit(tris[i + (uint32_t)l], lanes.t[l], lanes.v[l] * lanes.inv[l],
+                                    lanes.w[l] * lanes.inv[l], &best, &best_u, &best_v, &best_tri, &limit, &stop);
                 }
             }
         }

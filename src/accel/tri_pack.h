@@ -16,6 +16,8 @@
 #ifndef ARBOR_TRI_PACK_H
 #define ARBOR_TRI_PACK_H
 
+#include <string.h>
+
 #include "arbor/ray.h"
 #include "simd.h"
 
@@ -45,10 +47,43 @@ SIMD_INLINE void tri_ray_setup(tri_ray *q, const arbor_ray *r)
 
 /* What a pack test found: per lane, hit (all ones) or not, t, and V, W and
  * 1 / det, from which u = V / det and v = W / det as the scalar test gives
- * them. */
+ * them. Read whole (a lane read would keep the vectors in memory, stored
+ * at every test): tri_pack_lanes gives their lanes once a test has hit. */
 typedef struct {
     vfloat hit, t, v, w, inv;
 } tri_pack_hits;
+
+/* The lanes of a tri_pack_hits, to read lane by lane. */
+typedef struct {
+    float t[SIMD_LANES], v[SIMD_LANES], w[SIMD_LANES], inv[SIMD_LANES];
+} tri_pack_lanes;
+
+SIMD_INLINE void tri_pack_lanes_of(const tri_pack_hits *h, tri_pack_lanes *out)
+{
+    memcpy(out->t, &h->t, sizeof out->t);
+    memcpy(out->v, &h->v, sizeof out->v);
+    memcpy(out->w, &h->w, sizeof out->w);
+    memcpy(out->inv, &h->inv, sizeof out->inv);
+}
+
+/* The sheared vertices and edge functions of a pack (see tri_pack_test),
+ * in memory for the rare lanes decided in double. */
+typedef struct {
+    float ax[SIMD_LANES], ay[SIMD_LANES], bx[SIMD_LANES], by[SIMD_LANES], cx[SIMD_LANES], cy[SIMD_LANES];
+    float u[SIMD_LANES], v[SIMD_LANES], w[SIMD_LANES];
+} tri_pack_edges;
+
+/* The edge functions of the lanes in on_edge, one of them zero in single
+ * precision, redone in double as the scalar test does. Out of line: rare,
+ * and in line its lane accesses kept every vector of the test in memory,
+ * stored at each pack. */
+static __attribute__((noinline, cold)) void tri_pack_edges_exact(tri_pack_edges *e, int on_edge)
+{
+    for (int l = 0; l < SIMD_LANES; l++)
+        if (on_edge & (1 << l))
+            arbor_edge_functions_exact(e->ax[l], e->ay[l], e->bx[l], e->by[l], e->cx[l], e->cy[l], &e->u[l], &e->v[l],
+                                       &e->w[l]);
+}
 
 /* Row `axis` of vertex `vert` in the pack at v. */
 SIMD_INLINE vfloat tri_pack_row(const float *v, int vert, int axis)
@@ -78,14 +113,20 @@ SIMD_INLINE int tri_pack_test(const float *v, const tri_ray *q, vfloat tmax, tri
     const vfloat zero = vset1(0.0f);
     int on_edge = vmask(vor(vor(veq(u, zero), veq(vv, zero)), veq(w, zero)));
     if (__builtin_expect(on_edge != 0, 0)) {
-        for (int l = 0; l < SIMD_LANES; l++)
-            if (on_edge & (1 << l)) {
-                float U, V, W;
-                arbor_edge_functions_exact(ax[l], ay[l], bx[l], by[l], cx[l], cy[l], &U, &V, &W);
-                u[l] = U;
-                vv[l] = V;
-                w[l] = W;
-            }
+        tri_pack_edges e;
+        memcpy(e.ax, &ax, sizeof e.ax);
+        memcpy(e.ay, &ay, sizeof e.ay);
+        memcpy(e.bx, &bx, sizeof e.bx);
+        memcpy(e.by, &by, sizeof e.by);
+        memcpy(e.cx, &cx, sizeof e.cx);
+        memcpy(e.cy, &cy, sizeof e.cy);
+        memcpy(e.u, &u, sizeof e.u);
+        memcpy(e.v, &vv, sizeof e.v);
+        memcpy(e.w, &w, sizeof e.w);
+        tri_pack_edges_exact(&e, on_edge);
+        memcpy(&u, e.u, sizeof u);
+        memcpy(&vv, e.v, sizeof vv);
+        memcpy(&w, e.w, sizeof w);
     }
     vfloat some_neg = vor(vor(vlt(u, zero), vlt(vv, zero)), vlt(w, zero));
     vfloat some_pos = vor(vor(vgt(u, zero), vgt(vv, zero)), vgt(w, zero));
