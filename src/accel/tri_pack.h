@@ -66,67 +66,50 @@ SIMD_INLINE void tri_pack_lanes_of(const tri_pack_hits *h, tri_pack_lanes *out)
     memcpy(out->inv, &h->inv, sizeof out->inv);
 }
 
-/* The sheared vertices and edge functions of a pack (see tri_pack_test),
- * in memory for the rare lanes decided in double. */
-typedef struct {
-    float ax[SIMD_LANES], ay[SIMD_LANES], bx[SIMD_LANES], by[SIMD_LANES], cx[SIMD_LANES], cy[SIMD_LANES];
-    float u[SIMD_LANES], v[SIMD_LANES], w[SIMD_LANES];
-} tri_pack_edges;
-
-/* The edge functions of the lanes in on_edge, one of them zero in single
- * precision, redone in double as the scalar test does. Out of line: rare,
- * and in line its lane accesses kept every vector of the test in memory,
- * stored at each pack. */
-static __attribute__((noinline, cold)) void tri_pack_edges_exact(tri_pack_edges *e, int on_edge)
-{
-    for (int l = 0; l < SIMD_LANES; l++)
-        if (on_edge & (1 << l))
-            arbor_edge_functions_exact(e->ax[l], e->ay[l], e->bx[l], e->by[l], e->cx[l], e->cy[l], &e->u[l], &e->v[l],
-                                       &e->w[l]);
-}
-
 /* Row `axis` of vertex `vert` in the pack at v. */
 SIMD_INLINE vfloat tri_pack_row(const float *v, int vert, int axis)
 {
     return vload(v + (3 * vert + axis) * SIMD_LANES);
 }
 
-/* Tests the pack at v against the ray in (tmin, tmax); returns the mask of
- * lanes hit (bit l for lane l) and fills *out. */
-SIMD_INLINE int tri_pack_test(const float *v, const tri_ray *q, vfloat tmax, tri_pack_hits *out)
+/* The body of tri_pack_test. The arithmetic is the scalar test's; its
+ * order in the source makes each vertex's sheared coordinates just before
+ * their first use, so that fewer vectors are live at once (on 16 vector
+ * registers the test spilled). A lane whose edge function is zero in single
+ * precision is decided in double, as in the scalar test, only when `exact`;
+ * otherwise the pack is left for the caller to redo with `exact` set, out
+ * of line (-1): in line, the fallback's lane accesses kept every vector of
+ * the test in memory, stored at each pack. */
+SIMD_INLINE int tri_pack_eval(const float *v, const tri_ray *q, vfloat tmax, tri_pack_hits *out, bool exact)
 {
     const int kx = q->k[0], ky = q->k[1], kz = q->k[2];
     const vfloat ox = vset1(q->org[0]), oy = vset1(q->org[1]), oz = vset1(q->org[2]);
     const vfloat sx = vset1(q->shear[0]), sy = vset1(q->shear[1]), sz = vset1(q->shear[2]);
-    vfloat az = tri_pack_row(v, 0, kz) - oz;
     vfloat bz = tri_pack_row(v, 1, kz) - oz;
-    vfloat cz = tri_pack_row(v, 2, kz) - oz;
-    vfloat ax = (tri_pack_row(v, 0, kx) - ox) - sx * az;
-    vfloat ay = (tri_pack_row(v, 0, ky) - oy) - sy * az;
     vfloat bx = (tri_pack_row(v, 1, kx) - ox) - sx * bz;
     vfloat by = (tri_pack_row(v, 1, ky) - oy) - sy * bz;
+    vfloat cz = tri_pack_row(v, 2, kz) - oz;
     vfloat cx = (tri_pack_row(v, 2, kx) - ox) - sx * cz;
     vfloat cy = (tri_pack_row(v, 2, ky) - oy) - sy * cz;
     vfloat u = cx * by - cy * bx;
+    vfloat az = tri_pack_row(v, 0, kz) - oz;
+    vfloat ax = (tri_pack_row(v, 0, kx) - ox) - sx * az;
+    vfloat ay = (tri_pack_row(v, 0, ky) - oy) - sy * az;
     vfloat vv = ax * cy - ay * cx;
     vfloat w = bx * ay - by * ax;
     const vfloat zero = vset1(0.0f);
     int on_edge = vmask(vor(vor(veq(u, zero), veq(vv, zero)), veq(w, zero)));
-    if (__builtin_expect(on_edge != 0, 0)) {
-        tri_pack_edges e;
-        memcpy(e.ax, &ax, sizeof e.ax);
-        memcpy(e.ay, &ay, sizeof e.ay);
-        memcpy(e.bx, &bx, sizeof e.bx);
-        memcpy(e.by, &by, sizeof e.by);
-        memcpy(e.cx, &cx, sizeof e.cx);
-        memcpy(e.cy, &cy, sizeof e.cy);
-        memcpy(e.u, &u, sizeof e.u);
-        memcpy(e.v, &vv, sizeof e.v);
-        memcpy(e.w, &w, sizeof e.w);
-        tri_pack_edges_exact(&e, on_edge);
-        memcpy(&u, e.u, sizeof u);
-        memcpy(&vv, e.v, sizeof vv);
-        memcpy(&w, e.w, sizeof w);
+    if (on_edge != 0) {
+        if (!exact)
+            return -1;
+        for (int l = 0; l < SIMD_LANES; l++)
+            if (on_edge & (1 << l)) {
+                float U, V, W;
+                arbor_edge_functions_exact(ax[l], ay[l], bx[l], by[l], cx[l], cy[l], &U, &V, &W);
+                u[l] = U;
+                vv[l] = V;
+                w[l] = W;
+            }
     }
     vfloat some_neg = vor(vor(vlt(u, zero), vlt(vv, zero)), vlt(w, zero));
     vfloat some_pos = vor(vor(vgt(u, zero), vgt(vv, zero)), vgt(w, zero));
@@ -143,6 +126,27 @@ SIMD_INLINE int tri_pack_test(const float *v, const tri_ray *q, vfloat tmax, tri
     out->w = w;
     out->inv = inv;
     return vmask(hit);
+}
+
+/* The pack test with its edge lanes decided in double: rare, so out of
+ * line. The ray comes by value, so that the caller's stays in registers. */
+static __attribute__((noinline, cold)) int tri_pack_test_exact(const float *v, tri_ray q, vfloat tmax,
+                                                                tri_pack_hits *out)
+{
+    return tri_pack_eval(v, &q, tmax, out, true);
+}
+
+/* Tests the pack at v against the ray in (tmin, tmax); returns the mask of
+ * lanes hit (bit l for lane l) and fills *out. */
+SIMD_INLINE int tri_pack_test(const float *v, const tri_ray *q, vfloat tmax, tri_pack_hits *out)
+{
+    int hits = tri_pack_eval(v, q, tmax, out, false);
+    if (__builtin_expect(hits >= 0, 1))
+        return hits;
+    tri_pack_hits exact;
+    hits = tri_pack_test_exact(v, *q, tmax, &exact);
+    *out = exact;
+    return hits;
 }
 
 #endif
