@@ -6,6 +6,10 @@
  * every tree, with Intel Embree beside them when asked; and OBJ parse speed.
  *
  * Every figure is the median of `runs` repetitions of one measurement. With
+ * Embree, its builds and passes over a set alternate with each tree's (a
+ * tree's build, Embree's, a tree's, ...), so that a slow spell of a shared
+ * machine falls on both sides of a ratio; Embree's row gives the medians of
+ * all its measurements, a tree's ratios are to those taken beside it. With
  * opts.scale other than 1 the mesh is measured scaled by that power of two
  * (arbor_bench_scale_mesh, on a copy of its vertices): every ray of the sets
  * is then the unscaled one times the scale, bit for bit, so hits, triangles
@@ -45,8 +49,8 @@ typedef enum { ARBOR_SET_PRIMARY, ARBOR_SET_DIFFUSE, ARBOR_SET_SHADOW, ARBOR_SET
 const char *arbor_ray_set_name(arbor_ray_set set);
 
 /* One tracer on one mesh. Tree statistics and render_ms are NAN for
- * Embree's row; ratio[] (this row's Mrays/s over Embree's) is NAN without
- * Embree, and in Embree's own row. */
+ * Embree's row; ratio[] (this row's Mrays/s over Embree's, measured beside
+ * it) is NAN without Embree, and in Embree's own row. */
 typedef struct {
     char model[ARBOR_BENCH_MODEL_MAX];
     double scale;                 /* opts.scale: the factor the mesh was measured at */

@@ -4,9 +4,13 @@
  * and OBJ parse speed.
  *
  * Every figure is the median of o->runs repetitions through one helper,
- * median_of_runs, which is also where the cancel flag is checked: between
- * measurements, never inside one, so every figure reported was measured
- * whole.
+ * median_of_runs_beside, which is also where the cancel flag is checked:
+ * between measurements, never inside one, so every figure reported was
+ * measured whole. With Embree, each of a tree's builds and passes over a
+ * set is followed by the same of Embree's (their repetitions alternate), so
+ * that a slow spell of a shared machine falls on both sides of a ratio: on
+ * a VM, measuring all of a tree's repetitions and then all of Embree's gave
+ * one model's primary ratio as 1.24 in one run and 0.78 in the next.
  */
 #include <math.h>
 #include <stdio.h>
@@ -108,18 +112,41 @@ static bool cancelled(const atomic_bool *cancel, arbor_err *e)
     return false;
 }
 
+/* The median of values[0, n), n >= 1; sorts them. */
+static double median_of(double *values, size_t n)
+{
+    qsort(values, n, sizeof values[0], compare_doubles);
+    return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+}
+
 /* Calls measure `runs` times (checking the cancel flag before each);
- * *median gets the median of the values. */
+ * *median gets the median of the values. With a peer (not NULL), each call
+ * of measure is followed by one of peer, whose values are stored at
+ * peer_values[0, runs) and whose median goes to *peer_median (if not NULL). */
+static bool median_of_runs_beside(int runs, const atomic_bool *cancel, measure_fn measure, void *ctx,
+                                  measure_fn peer, void *peer_ctx, double *median, double *peer_values,
+                                  double *peer_median, arbor_err *e)
+{
+    double values[ARBOR_BENCH_MAX_RUNS], peers[ARBOR_BENCH_MAX_RUNS];
+    for (int i = 0; i < runs; i++) {
+        if (cancelled(cancel, e) || !measure(ctx, &values[i], e))
+            return false;
+        if (peer != NULL && !peer(peer_ctx, &peers[i], e))
+            return false;
+    }
+    *median = median_of(values, (size_t)runs);
+    if (peer != NULL) {
+        memcpy(peer_values, peers, (size_t)runs * sizeof peers[0]);
+        if (peer_median != NULL)
+            *peer_median = median_of(peers, (size_t)runs);
+    }
+    return true;
+}
+
 static bool median_of_runs(int runs, const atomic_bool *cancel, measure_fn measure, void *ctx, double *median,
                            arbor_err *e)
 {
-    double values[ARBOR_BENCH_MAX_RUNS];
-    for (int i = 0; i < runs; i++)
-        if (cancelled(cancel, e) || !measure(ctx, &values[i], e))
-            return false;
-    qsort(values, (size_t)runs, sizeof values[0], compare_doubles);
-    *median = runs % 2 ? values[runs / 2] : 0.5 * (values[runs / 2 - 1] + values[runs / 2]);
-    return true;
+    return median_of_runs_beside(runs, cancel, measure, ctx, NULL, NULL, median, NULL, NULL, e);
 }
 
 /* ---- measures ---- */
@@ -200,6 +227,19 @@ static bool measure_embree_build(void *ctx, double *value, arbor_err *e)
 /* ---- one mesh ---- */
 
 /* What every row of one arbor_bench_mesh call shares. */
+/* Embree's side of a run (opts.embree): its peer, rebuilt beside every
+ * tree's builds; every measurement of it, which its own row's medians are
+ * of; and, per tree row, the medians of the set passes beside that row,
+ * which the row's ratios are to. */
+#define EMBREE_BUILD 0 /* samples[0]: build ms; samples[1 + s]: set s's Mrays/s */
+typedef struct {
+    embree_measure measure;
+    double *samples[1 + ARBOR_SET_COUNT];
+    size_t nsamples[1 + ARBOR_SET_COUNT];
+    double (*beside)[ARBOR_SET_COUNT]; /* per tree row */
+    arbor_tally primary;               /* of a pass over the primary set */
+} embree_side;
+
 typedef struct {
     const arbor_bench_opts *o;
     const char *model;
@@ -209,6 +249,7 @@ typedef struct {
     arbor_raysets sets;
     arbor_bench_row *rows;
     size_t done, total;
+    embree_side *embree; /* NULL without opts.embree */
 } bench_run;
 
 /* Builds run on the run's pool and threads, and stop when cancelled. */
@@ -229,23 +270,42 @@ static const arbor_ray *set_rays(const arbor_raysets *sets, int s, size_t *n)
     return rays[s];
 }
 
-/* Times the three sets with one tracer, filling the row's Mrays/s, hits, tsum. */
-static bool time_sets(const bench_run *b, arbor_trace_kernel kernel, const void *tracer, arbor_bench_row *row,
-                      arbor_err *e)
+/* Where a run's next `runs` measurements of Embree's go: the end of the
+ * samples of kind k. */
+static double *embree_samples_next(embree_side *x, int k, int runs)
 {
+    double *at = x->samples[k] + x->nsamples[k];
+    x->nsamples[k] += (size_t)runs;
+    return at;
+}
+
+/* Times the three sets with the tree of row b->done, filling the row's
+ * Mrays/s, hits and tsum; Embree's passes alternate with its own. */
+static bool time_sets(const bench_run *b, const arbor_accel *tree, arbor_bench_row *row, arbor_err *e)
+{
+    embree_side *x = b->embree;
     for (int s = 0; s < ARBOR_SET_COUNT; s++) {
         size_t n;
         const arbor_ray *rays = set_rays(&b->sets, s, &n);
-        set_measure m = {b->pool, kernel, tracer, rays, n, s == ARBOR_SET_SHADOW, b->threads, {0, 0.0}};
+        bool any_hit = s == ARBOR_SET_SHADOW;
+        set_measure m = {b->pool, arbor_accel_kernel, tree, rays, n, any_hit, b->threads, {0, 0.0}};
+        set_measure peer = {b->pool, arbor_embree_kernel, x ? x->measure.peer : NULL, rays, n, any_hit, b->threads,
+                            {0, 0.0}};
         if (n == 0) {
             row->mrays[s] = 0.0;
+            if (x != NULL)
+                x->beside[b->done][s] = 0.0;
             continue;
         }
-        if (!median_of_runs(b->o->runs, b->o->cancel, measure_set, &m, &row->mrays[s], e))
+        if (!median_of_runs_beside(b->o->runs, b->o->cancel, measure_set, &m, x ? measure_set : NULL, &peer,
+                                   &row->mrays[s], x ? embree_samples_next(x, 1 + s, b->o->runs) : NULL,
+                                   x ? &x->beside[b->done][s] : NULL, e))
             return false;
         if (s == ARBOR_SET_PRIMARY) {
             row->primary_hits = m.tally.hits;
             row->primary_tsum = m.tally.tsum;
+            if (x != NULL)
+                x->primary = peer.tally;
         }
     }
     return true;
@@ -304,7 +364,10 @@ static bool bench_tree(bench_run *b, arbor_accel_kind kind, arbor_builder builde
     bm.mesh = b->mesh;
     bm.tree = NULL;
     build_opts(b, kind, builder, &bm.opts);
-    bool ok = median_of_runs(b->o->runs, b->o->cancel, measure_build, &bm, &row->build_ms, e);
+    embree_side *x = b->embree;
+    bool ok = median_of_runs_beside(b->o->runs, b->o->cancel, measure_build, &bm, x ? measure_embree_build : NULL,
+                                    x ? &x->measure : NULL, &row->build_ms,
+                                    x ? embree_samples_next(x, EMBREE_BUILD, b->o->runs) : NULL, NULL, e);
     if (ok) {
         arbor_tree_stats s;
         arbor_accel_stats(bm.tree, &s);
@@ -319,7 +382,7 @@ static bool bench_tree(bench_run *b, arbor_accel_kind kind, arbor_builder builde
         arbor_render_params_init(&r.params, b->mesh, ARBOR_PROTOCOL_WIDTH, ARBOR_PROTOCOL_HEIGHT);
         ok = median_of_runs(b->o->runs, b->o->cancel, measure_render, &r, &row->render_ms, e);
     }
-    ok = ok && time_sets(b, arbor_accel_kernel, bm.tree, row, e);
+    ok = ok && time_sets(b, bm.tree, row, e);
     if (ok)
         count_sets(b, bm.tree, row);
     arbor_accel_free(bm.tree);
@@ -328,20 +391,25 @@ static bool bench_tree(bench_run *b, arbor_accel_kind kind, arbor_builder builde
     return ok;
 }
 
-static bool bench_embree(bench_run *b, arbor_err *e)
+/* Embree's row, the last: the medians of all its measurements beside the
+ * tree rows. */
+static void embree_row(bench_run *b)
 {
+    const embree_side *x = b->embree;
     arbor_bench_row *row = &b->rows[b->done];
     row_init(b, row, "embree", "default");
     row->kernel = b->o->embree_isa;
-    embree_measure m = {b->mesh, b->threads, b->o->embree_isa, NULL};
-    bool ok = median_of_runs(b->o->runs, b->o->cancel, measure_embree_build, &m, &row->build_ms, e);
-    if (ok && b->mesh->ntris > 0)
-        row->bytes_per_tri = (double)arbor_embree_bvh_bytes(m.peer) / (double)b->mesh->ntris;
-    ok = ok && time_sets(b, arbor_embree_kernel, m.peer, row, e);
-    arbor_embree_free(m.peer);
-    if (ok)
-        row_finished(b);
-    return ok;
+    row->build_ms = median_of(x->samples[EMBREE_BUILD], x->nsamples[EMBREE_BUILD]);
+    if (b->mesh->ntris > 0)
+        row->bytes_per_tri = (double)arbor_embree_bvh_bytes(x->measure.peer) / (double)b->mesh->ntris;
+    for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+        size_t n;
+        set_rays(&b->sets, s, &n);
+        row->mrays[s] = n > 0 ? median_of(x->samples[1 + s], x->nsamples[1 + s]) : 0.0;
+    }
+    row->primary_hits = x->primary.hits;
+    row->primary_tsum = x->primary.tsum;
+    row_finished(b);
 }
 
 /* The ray sets: primary, then diffuse and shadow from the hits of the
@@ -371,13 +439,46 @@ static bool make_sets(bench_run *b, arbor_err *e)
     return ok;
 }
 
-/* Every arbor row's Mrays/s over Embree's (the last row). */
+/* Every tree row's Mrays/s over Embree's median beside it. */
 static void fill_ratios(bench_run *b)
 {
-    const arbor_bench_row *peer = &b->rows[b->total - 1];
     for (size_t i = 0; i + 1 < b->total; i++)
-        for (int s = 0; s < ARBOR_SET_COUNT; s++)
-            b->rows[i].ratio[s] = peer->mrays[s] > 0.0 ? b->rows[i].mrays[s] / peer->mrays[s] : NAN;
+        for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+            double peer = b->embree->beside[i][s];
+            b->rows[i].ratio[s] = peer > 0.0 ? b->rows[i].mrays[s] / peer : NAN;
+        }
+}
+
+/* Embree's side for a run of `trees` tree rows: room for `runs`
+ * measurements of each kind per row. NULL when out of memory. */
+static embree_side *embree_side_new(const bench_run *b, size_t trees)
+{
+    embree_side *x = calloc(1, sizeof *x);
+    if (x == NULL)
+        return NULL;
+    x->measure = (embree_measure){b->mesh, b->threads, b->o->embree_isa, NULL};
+    bool ok = (x->beside = calloc(trees, sizeof *x->beside)) != NULL;
+    for (int k = 0; k < 1 + ARBOR_SET_COUNT; k++)
+        ok = ok && (x->samples[k] = malloc(trees * (size_t)b->o->runs * sizeof(double))) != NULL;
+    if (!ok) {
+        for (int k = 0; k < 1 + ARBOR_SET_COUNT; k++)
+            free(x->samples[k]);
+        free(x->beside);
+        free(x);
+        return NULL;
+    }
+    return x;
+}
+
+static void embree_side_free(embree_side *x)
+{
+    if (x == NULL)
+        return;
+    arbor_embree_free(x->measure.peer);
+    for (int k = 0; k < 1 + ARBOR_SET_COUNT; k++)
+        free(x->samples[k]);
+    free(x->beside);
+    free(x);
 }
 
 static bool check_opts(const arbor_bench_opts *o, arbor_err *e)
@@ -400,13 +501,14 @@ static bool bench_all(bench_run *b, arbor_err *e)
     const arbor_bench_opts *o = b->o;
     if (cancelled(o->cancel, e) || !make_sets(b, e))
         return false;
+    if (o->embree && (b->embree = embree_side_new(b, b->total - 1)) == NULL)
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory for Embree's measurements");
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
         for (int bl = 0; bl < ARBOR_BUILDER_COUNT; bl++)
             if (o->kinds[k] && o->builders[bl] && !bench_tree(b, (arbor_accel_kind)k, (arbor_builder)bl, e))
                 return false;
     if (o->embree) {
-        if (!bench_embree(b, e))
-            return false;
+        embree_row(b);
         fill_ratios(b);
     }
     return true;
@@ -450,6 +552,7 @@ bool arbor_bench_mesh(const char *model_name, const arbor_mesh *m, const arbor_b
     }
     b.pool = o->pool != NULL ? o->pool : arbor_pool_create(b.threads, e);
     bool ok = b.pool != NULL && bench_all(&b, e);
+    embree_side_free(b.embree);
     arbor_raysets_free(&b.sets);
     if (o->pool == NULL)
         arbor_pool_destroy(b.pool);

@@ -4,7 +4,8 @@
  * small Cornell box fills the rows it promised and reports each as it
  * finishes; every tree traced the primary hits brute force finds on the same
  * rays; a cancel flag, set before or during the run, stops it with
- * ARBOR_ERR_CANCELLED; a mesh measured scaled by a power of two traces the
+ * ARBOR_ERR_CANCELLED; with Embree, its row is last and each tree's ratios
+ * are to the Embree passes beside it; a mesh measured scaled by a power of two traces the
  * same hits at distances summing to the unscaled sum times the scale; bad
  * options are refused; the JSON keys are the ones
  * scripts/bench_tables.py reads, NAN written as null; parse timing counts
@@ -131,6 +132,44 @@ static void test_every_tree_gets_its_row_and_the_same_hits_as_brute_force(void)
         /* every hit took a triangle test at least */
         double hits_per_ray = (double)truth / (ARBOR_PROTOCOL_WIDTH * ARBOR_PROTOCOL_HEIGHT);
         TEST_ASSERT_TRUE_MESSAGE(r->tris_per_ray[ARBOR_SET_PRIMARY] >= hits_per_ray, r->builder);
+    }
+}
+
+/* With Embree, its row comes last and traced the same primary hits; each
+ * tree row's ratios are to the Embree passes made beside that row (with
+ * one tree row, exactly the tree's Mrays/s over Embree's row's). Skipped
+ * where arbord is built without Embree (make bench-embree installs it). */
+static void test_embree_row_and_ratios_to_the_passes_beside_each_tree(void)
+{
+    if (!arbor_embree_available())
+        TEST_IGNORE_MESSAGE("built without Embree");
+    uint64_t truth = brute_primary_hits();
+    for (int trees = 1; trees <= 2; trees++) {
+        arbor_bench_opts o;
+        arbor_bench_opts_init(&o);
+        o.runs = 3;
+        o.threads = 2;
+        o.embree = true;
+        o.kinds[ARBOR_ACCEL_KD] = false;
+        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
+            o.builders[b] = b == ARBOR_BUILD_SAH || (trees == 2 && b == ARBOR_BUILD_MEDIAN);
+        arbor_bench_row rows[3];
+        arbor_err e;
+        TEST_ASSERT_EQUAL_UINT64((size_t)trees + 1, arbor_bench_row_count(&o));
+        TEST_ASSERT_TRUE_MESSAGE(arbor_bench_mesh("cornell4", &mesh, &o, rows, &e), e.msg);
+        const arbor_bench_row *peer = &rows[trees];
+        TEST_ASSERT_EQUAL_STRING("embree", peer->accel);
+        TEST_ASSERT_EQUAL_UINT64(truth, peer->primary_hits);
+        TEST_ASSERT_TRUE(peer->build_ms > 0.0 && peer->bytes_per_tri > 0.0 && isnan(peer->render_ms));
+        for (int s = 0; s < ARBOR_SET_COUNT; s++) {
+            TEST_ASSERT_TRUE(peer->mrays[s] > 0.0 && isnan(peer->ratio[s]));
+            for (int t = 0; t < trees; t++) {
+                TEST_ASSERT_TRUE(arbor_bench_same_hits(&rows[t], peer));
+                TEST_ASSERT_TRUE(rows[t].ratio[s] > 0.0 && isfinite(rows[t].ratio[s]));
+            }
+            if (trees == 1)
+                TEST_ASSERT_EQUAL_DOUBLE(rows[0].mrays[s] / peer->mrays[s], rows[0].ratio[s]);
+        }
     }
 }
 
@@ -356,6 +395,7 @@ int main(void)
 {
     UNITY_BEGIN();
     RUN_TEST(test_every_tree_gets_its_row_and_the_same_hits_as_brute_force);
+    RUN_TEST(test_embree_row_and_ratios_to_the_passes_beside_each_tree);
     RUN_TEST(test_a_scaled_mesh_gives_the_same_hits_at_scaled_distances);
     RUN_TEST(test_a_cancel_flag_set_before_stops_before_any_row);
     RUN_TEST(test_a_cancel_flag_set_during_the_run_stops_it_between_measurements);
