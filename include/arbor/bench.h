@@ -82,7 +82,8 @@ typedef struct {
     int runs;                            /* 1..ARBOR_BENCH_MAX_RUNS; each figure is their median */
     int threads;                         /* build and trace threads, the caller included; 0 = as many
                                           * as the pool has, or one per core without a pool */
-    bool embree;                         /* add Embree's row and every row's ratio to it */
+    bool embree;                         /* add Embree's row and every row's ratio to the Embree
+                                          * passes beside it */
     const char *embree_isa;              /* NULL: Embree's kernels for the best ISA the CPU has;
                                           * else the highest it may use (arbor_embree_build) */
     float scale;                         /* measure the mesh scaled by this power of two (see above) */

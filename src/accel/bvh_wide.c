@@ -332,9 +332,10 @@ typedef struct {
  * indices, then the corners), at places leaf order makes random in the
  * mesh's arrays. The corner indices are fetched PACK_AHEAD_INDICES packs
  * ahead, the corners, through indices by then in cache,
- * PACK_AHEAD_VERTICES ahead (1 thread, medians of 20 builds, bunny's pass
- * 3.0 -> 2.1 ms, sponza's 1.6 -> 1.3, dragon's 38 -> 29 of 5: the stalls
- * on those loads were most of its time outside the kernel). */
+ * PACK_AHEAD_VERTICES ahead (1 thread, the pass's median over 20 builds:
+ * bunny 3.0 -> 2.1 ms, sponza 1.6 -> 1.3; over 5: dragon 38 -> 29; the
+ * stalls on those loads were most of its time outside the kernel). The
+ * first packs of a pass go unprefetched, which costs only their stalls. */
 #define PACK_AHEAD_INDICES 8
 #define PACK_AHEAD_VERTICES 4
 

@@ -1,12 +1,14 @@
 /*
  * tri_pack.h - the watertight ray-triangle test (arbor_triangle_intersect,
  * include/arbor/ray.h) on a pack of SIMD_LANES triangles at once, for the
- * leaves of every tree. Each lane goes through the same operations in the
- * same order as the scalar test, with no fused multiply-add (the kernels
- * are compiled with -ffp-contract=off), so each triangle gives exactly the
- * t, u, v brute force computes for it; an edge function that comes out
- * zero in single precision is decided in double by the scalar test's own
- * arbor_edge_functions_exact, as there.
+ * leaves of every tree. Each lane computes every value the scalar test
+ * does by the same operations on the same operands (the source computes
+ * them in another order, which changes no rounding), with no fused
+ * multiply-add (the kernels are compiled with -ffp-contract=off), so each
+ * triangle gives exactly the t, u, v brute force computes for it; an edge
+ * function that comes out zero in single precision is decided in double by
+ * the scalar test's own arbor_edge_functions_exact, as there, in a pass
+ * over the pack made out of line because it is rare.
  *
  * A pack's layout is a float array v[3][3][SIMD_LANES]: vertex a, b, c;
  * axis x, y, z; lane = triangle, 4 * SIMD_LANES-byte aligned. Lanes a pack
@@ -45,12 +47,13 @@ SIMD_INLINE void tri_ray_setup(tri_ray *q, const arbor_ray *r)
     q->tmin = r->tmin;
 }
 
-/* What a pack test found: per lane, hit (all ones) or not, t, and V, W and
- * 1 / det, from which u = V / det and v = W / det as the scalar test gives
- * them. Read whole (a lane read would keep the vectors in memory, stored
- * at every test): tri_pack_lanes gives their lanes once a test has hit. */
+/* What a pack test found (the lanes hit are its return value): per lane t,
+ * and V, W and 1 / det, from which u = V / det and v = W / det as the
+ * scalar test gives them. Read whole (a lane read would keep the vectors in
+ * memory, stored at every test): tri_pack_lanes gives their lanes once a
+ * test has hit. */
 typedef struct {
-    vfloat hit, t, v, w, inv;
+    vfloat t, v, w, inv;
 } tri_pack_hits;
 
 /* The lanes of a tri_pack_hits, to read lane by lane. */
@@ -120,7 +123,6 @@ SIMD_INLINE int tri_pack_eval(const float *v, const tri_ray *q, vfloat tmax, tri
     /* det == 0 needs no test of its own: then inv is infinite and t is NaN
      * or infinite, outside (tmin, tmax) */
     vfloat hit = vandnot(vand(some_neg, some_pos), vand(vgt(t, vset1(q->tmin)), vlt(t, tmax)));
-    out->hit = hit;
     out->t = t;
     out->v = vv;
     out->w = w;
@@ -129,11 +131,12 @@ SIMD_INLINE int tri_pack_eval(const float *v, const tri_ray *q, vfloat tmax, tri
 }
 
 /* The pack test with its edge lanes decided in double: rare, so out of
- * line. The ray comes by value, so that the caller's stays in registers. */
-static __attribute__((noinline, cold)) int tri_pack_test_exact(const float *v, tri_ray q, vfloat tmax,
+ * line. The ray comes by value, so that the caller's stays in registers,
+ * and tmax by pointer, as simd.h passes no vector to a call. */
+static __attribute__((noinline, cold)) int tri_pack_test_exact(const float *v, tri_ray q, const vfloat *tmax,
                                                                 tri_pack_hits *out)
 {
-    return tri_pack_eval(v, &q, tmax, out, true);
+    return tri_pack_eval(v, &q, *tmax, out, true);
 }
 
 /* Tests the pack at v against the ray in (tmin, tmax); returns the mask of
@@ -144,7 +147,7 @@ SIMD_INLINE int tri_pack_test(const float *v, const tri_ray *q, vfloat tmax, tri
     if (__builtin_expect(hits >= 0, 1))
         return hits;
     tri_pack_hits exact;
-    hits = tri_pack_test_exact(v, *q, tmax, &exact);
+    hits = tri_pack_test_exact(v, *q, &tmax, &exact);
     *out = exact;
     return hits;
 }

@@ -131,7 +131,7 @@ static bool median_of_runs_beside(int runs, const atomic_bool *cancel, measure_f
     for (int i = 0; i < runs; i++) {
         if (cancelled(cancel, e) || !measure(ctx, &values[i], e))
             return false;
-        if (peer != NULL && !peer(peer_ctx, &peers[i], e))
+        if (peer != NULL && (cancelled(cancel, e) || !peer(peer_ctx, &peers[i], e)))
             return false;
     }
     *median = median_of(values, (size_t)runs);
@@ -226,7 +226,6 @@ static bool measure_embree_build(void *ctx, double *value, arbor_err *e)
 
 /* ---- one mesh ---- */
 
-/* What every row of one arbor_bench_mesh call shares. */
 /* Embree's side of a run (opts.embree): its peer, rebuilt beside every
  * tree's builds; every measurement of it, which its own row's medians are
  * of; and, per tree row, the medians of the set passes beside that row,
@@ -240,6 +239,7 @@ typedef struct {
     arbor_tally primary;               /* of a pass over the primary set */
 } embree_side;
 
+/* What every row of one arbor_bench_mesh call shares. */
 typedef struct {
     const arbor_bench_opts *o;
     const char *model;
@@ -449,6 +449,17 @@ static void fill_ratios(bench_run *b)
         }
 }
 
+static void embree_side_free(embree_side *x)
+{
+    if (x == NULL)
+        return;
+    arbor_embree_free(x->measure.peer);
+    for (int k = 0; k < 1 + ARBOR_SET_COUNT; k++)
+        free(x->samples[k]);
+    free(x->beside);
+    free(x);
+}
+
 /* Embree's side for a run of `trees` tree rows: room for `runs`
  * measurements of each kind per row. NULL when out of memory. */
 static embree_side *embree_side_new(const bench_run *b, size_t trees)
@@ -461,24 +472,10 @@ static embree_side *embree_side_new(const bench_run *b, size_t trees)
     for (int k = 0; k < 1 + ARBOR_SET_COUNT; k++)
         ok = ok && (x->samples[k] = malloc(trees * (size_t)b->o->runs * sizeof(double))) != NULL;
     if (!ok) {
-        for (int k = 0; k < 1 + ARBOR_SET_COUNT; k++)
-            free(x->samples[k]);
-        free(x->beside);
-        free(x);
+        embree_side_free(x);
         return NULL;
     }
     return x;
-}
-
-static void embree_side_free(embree_side *x)
-{
-    if (x == NULL)
-        return;
-    arbor_embree_free(x->measure.peer);
-    for (int k = 0; k < 1 + ARBOR_SET_COUNT; k++)
-        free(x->samples[k]);
-    free(x->beside);
-    free(x);
 }
 
 static bool check_opts(const arbor_bench_opts *o, arbor_err *e)
