@@ -122,24 +122,22 @@ static double median_of(double *values, size_t n)
 /* Calls measure `runs` times (checking the cancel flag before each);
  * *median gets the median of the values. With a peer (not NULL), each call
  * of measure is followed by one of peer, whose values are stored at
- * peer_values[0, runs) and whose median goes to *peer_median (if not NULL). */
+ * peer_values[0, runs) (in no particular order) and whose median goes to
+ * *peer_median (if not NULL). */
 static bool median_of_runs_beside(int runs, const atomic_bool *cancel, measure_fn measure, void *ctx,
                                   measure_fn peer, void *peer_ctx, double *median, double *peer_values,
                                   double *peer_median, arbor_err *e)
 {
-    double values[ARBOR_BENCH_MAX_RUNS], peers[ARBOR_BENCH_MAX_RUNS];
+    double values[ARBOR_BENCH_MAX_RUNS];
     for (int i = 0; i < runs; i++) {
         if (cancelled(cancel, e) || !measure(ctx, &values[i], e))
             return false;
-        if (peer != NULL && (cancelled(cancel, e) || !peer(peer_ctx, &peers[i], e)))
+        if (peer != NULL && (cancelled(cancel, e) || !peer(peer_ctx, &peer_values[i], e)))
             return false;
     }
     *median = median_of(values, (size_t)runs);
-    if (peer != NULL) {
-        memcpy(peer_values, peers, (size_t)runs * sizeof peers[0]);
-        if (peer_median != NULL)
-            *peer_median = median_of(peers, (size_t)runs);
-    }
+    if (peer != NULL && peer_median != NULL)
+        *peer_median = median_of(peer_values, (size_t)runs);
     return true;
 }
 
@@ -402,11 +400,8 @@ static void embree_row(bench_run *b)
     row->build_ms = median_of(x->samples[EMBREE_BUILD], x->nsamples[EMBREE_BUILD]);
     if (b->mesh->ntris > 0)
         row->bytes_per_tri = (double)arbor_embree_bvh_bytes(x->measure.peer) / (double)b->mesh->ntris;
-    for (int s = 0; s < ARBOR_SET_COUNT; s++) {
-        size_t n;
-        set_rays(&b->sets, s, &n);
-        row->mrays[s] = n > 0 ? median_of(x->samples[1 + s], x->nsamples[1 + s]) : 0.0;
-    }
+    for (int s = 0; s < ARBOR_SET_COUNT; s++) /* no samples: a set without rays */
+        row->mrays[s] = x->nsamples[1 + s] > 0 ? median_of(x->samples[1 + s], x->nsamples[1 + s]) : 0.0;
     row->primary_hits = x->primary.hits;
     row->primary_tsum = x->primary.tsum;
     row_finished(b);
