@@ -130,6 +130,8 @@ CASES = [
                                                           "runs": 1}, 404, "not_found", None),
     ("bench_unknown_builder", "main", "POST", "/api/bench", {"model": "cornell", "accel": ["bvh"], "builder": ["fast"],
                                                             "runs": 1}, 400, "bad_request", "fast"),
+    ("bench_embree_not_bool", "main", "POST", "/api/bench", {"model": "cornell", "accel": ["bvh"], "builder": ["sah"],
+                                                            "runs": 1, "embree": "yes"}, 400, "bad_request", "embree"),
     # paths and methods
     ("unknown_path", "main", "GET", "/api/no-such-thing", None, 404, "not_found", None),
     ("unknown_static_file", "main", "GET", "/no-such-file.html", None, 404, "not_found", None),
