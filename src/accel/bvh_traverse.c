@@ -236,9 +236,11 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             for (;; pack++) {
                 tri_pack_hits ph;
                 int hits = tri_pack_test(&pack->v[0][0][0], &tq, vset1(limit), &ph);
-                if (hits != 0) {
-                    if (any_hit)
-                        return true;
+                if (any_hit && hits != 0)
+                    return true;
+                /* rare (at most a few packs a ray), and GCC allocates
+                 * registers for the loop around it when told so */
+                if (__builtin_expect(hits != 0, 0)) {
                     /* the nearest lane, the lowest triangle index on a tie;
                      * a lane at t == tmax wins only with a lower index than
                      * the best's (the test admits t up to limit for that) */
@@ -255,7 +257,7 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                             hit_v = lanes.w[l] * lanes.inv[l];
                         }
                     }
-                    limit = nextafterf(tmax, INFINITY);
+                    limit = tri_pack_next_up(tmax);
                     box_tmax = box_bound(tmax);
                 }
                 if (bvh_pack_is_last(pack))

@@ -117,7 +117,7 @@ static inline void kd_keep_hit(uint32_t tri, float t, float u, float v, float *b
         *best_u = u;
         *best_v = v;
         *best_tri = tri;
-        *limit = nextafterf(t, INFINITY);
+        *limit = tri_pack_next_up(t);
         *stop = t + fabsf(t) * KD_SPLIT_MARGIN;
     }
 }

@@ -69,6 +69,26 @@ SIMD_INLINE void tri_pack_lanes_of(const tri_pack_hits *h, tri_pack_lanes *out)
     memcpy(out->inv, &h->inv, sizeof out->inv);
 }
 
+/* nextafterf(t, INFINITY) for the t of a hit (finite: t < tmax), the bound
+ * the tests take once there is a hit, so that a tie at t reaches the index
+ * rule. In line, not libm's: a call in the traversal loop, even one made
+ * only after a hit, clobbers every vector register, and GCC then kept the
+ * ray's constants and the tree's pointers in memory for the whole loop,
+ * reloading them at every node (docs/BENCH.md). */
+SIMD_INLINE float tri_pack_next_up(float t)
+{
+    uint32_t u;
+    memcpy(&u, &t, sizeof u);
+    if (t == 0.0f)
+        u = 1;            /* either zero: the smallest positive float */
+    else if (u >> 31)
+        u--;              /* negative: one step towards zero */
+    else if (t < INFINITY)
+        u++;
+    memcpy(&t, &u, sizeof t);
+    return t;
+}
+
 /* Row `axis` of vertex `vert` in the pack at v. */
 SIMD_INLINE vfloat tri_pack_row(const float *v, int vert, int axis)
 {
@@ -132,8 +152,9 @@ SIMD_INLINE int tri_pack_eval(const float *v, const tri_ray *q, vfloat tmax, tri
 
 /* The pack test with its edge lanes decided in double: rare, so out of
  * line. The ray comes by value, so that the caller's stays in registers,
- * and tmax by pointer, as simd.h passes no vector to a call. */
-static __attribute__((noinline, cold)) int tri_pack_test_exact(const float *v, tri_ray q, const vfloat *tmax,
+ * and tmax by pointer, as simd.h passes no vector to a call. (`unused`: a
+ * file may include this header for the other helpers alone.) */
+static __attribute__((noinline, cold, unused)) int tri_pack_test_exact(const float *v, tri_ray q, const vfloat *tmax,
                                                                 tri_pack_hits *out)
 {
     return tri_pack_eval(v, &q, *tmax, out, true);

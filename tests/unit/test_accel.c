@@ -8,6 +8,7 @@
  * and cancelling, before a build starts and from another thread while it
  * runs (leaks show under make asan).
  */
+#include <float.h>
 #include <math.h>
 #include <pthread.h>
 #include <stdio.h>
@@ -20,6 +21,8 @@
 #include "arbor/load.h"
 #include "arbor/procgen.h"
 #include "../../src/accel/accel_impl.h"
+#define SIMD_LANES 4
+#include "../../src/accel/tri_pack.h"
 #include "support.h"
 #include "unity.h"
 
@@ -203,6 +206,35 @@ static void test_random_soup_10k(void)
     test_random_soup(&m, 10000, 42);
     check_mesh("soup", &m, 4);
     arbor_mesh_free(&m);
+}
+
+static uint32_t float_bits(float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return u;
+}
+
+/* The traversals' in-line next float above a hit's t (tri_pack.h) is libm's
+ * nextafterf(t, INFINITY) for every t a hit can have: zeros of both signs,
+ * denormals, negatives, the largest float, and random bit patterns (all
+ * but NaN and the infinities). */
+static void test_next_up_is_nextafterf(void)
+{
+    const float special[] = {0.0f, -0.0f, 0x1p-149f, -0x1p-149f, 0x1p-126f, -0x1p-126f, -0x1p-127f,
+                             1.0f, -1.0f, 0.1f, 3.5e-7f, 1e30f, -1e30f, FLT_MAX, -FLT_MAX};
+    for (size_t i = 0; i < sizeof special / sizeof special[0]; i++)
+        TEST_ASSERT_EQUAL_HEX32(float_bits(nextafterf(special[i], INFINITY)), float_bits(tri_pack_next_up(special[i])));
+    uint64_t state = 12345;
+    for (int i = 0; i < 1000000; i++) {
+        state = state * 6364136223846793005u + 1442695040888963407u;
+        uint32_t u = (uint32_t)(state >> 32);
+        float t;
+        memcpy(&t, &u, sizeof t);
+        if (!isfinite(t))
+            continue;
+        TEST_ASSERT_EQUAL_HEX32(float_bits(nextafterf(t, INFINITY)), float_bits(tri_pack_next_up(t)));
+    }
 }
 
 /* Rays with a NaN or infinite component in the origin or the direction,
@@ -458,6 +490,7 @@ static void test_build_cancelled_while_running(void)
 int main(void)
 {
     UNITY_BEGIN();
+    RUN_TEST(test_next_up_is_nextafterf);
     RUN_TEST(test_random_soup_10k);
     RUN_TEST(test_galleon);
     RUN_TEST(test_castle);
