@@ -23,9 +23,7 @@
  * test checks at once, with leaf triangles in packs of BVH_WIDTH that one
  * SIMD triangle test checks at once. A wide node is 32 BVH_WIDTH bytes
  * (BVH_WIDTH / 2 cache lines): its children's boxes as six rows of
- * BVH_WIDTH lanes, an axis' lo and hi side by side (row 2 axis + 1 is the
- * hi of row 2 axis, so a ray's far row is its near row ^ 1), a 32-bit
- * reference per child,
+ * BVH_WIDTH lanes, a 32-bit reference per child,
  *
  *     inner child: the wide node's index (never 0, the root)
  *     leaf child:  BVH_REF_LEAF | first pack
@@ -83,7 +81,7 @@ _Static_assert(sizeof(bvh_node) == 32, "a node is half a cache line");
 #define BVH_LANE_UNUSED UINT32_MAX
 
 typedef struct {
-    float box[6][BVH_WIDTH];      /* rows lo x, hi x, lo y, hi y, lo z, hi z; lane c is child c */
+    float box[6][BVH_WIDTH];      /* rows lo x, y, z, hi x, y, z; lane c is child c */
     uint32_t child[BVH_WIDTH];    /* references, as above */
     uint32_t unused[BVH_WIDTH];
 } bvh_wide_node;
@@ -192,7 +190,7 @@ static inline bool bvh_slot_is_empty(const bvh_wide_node *n, int c)
 /* Child c's box in wide node n. */
 static inline arbor_aabb bvh_lane_box(const bvh_wide_node *n, int c)
 {
-    arbor_aabb b = {vec3(n->box[0][c], n->box[2][c], n->box[4][c]), vec3(n->box[1][c], n->box[3][c], n->box[5][c])};
+    arbor_aabb b = {vec3(n->box[0][c], n->box[1][c], n->box[2][c]), vec3(n->box[3][c], n->box[4][c], n->box[5][c])};
     return b;
 }
 

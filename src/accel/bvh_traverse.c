@@ -55,12 +55,10 @@
  * origin, the inverse direction (+-inf for a zero component) and, for exit
  * distances, that inverse scaled up by BVH_EXIT_SCALE; per axis the row of
  * a node's boxes the ray enters through (lo, or hi when the direction is
- * negative). It leaves through the other row of the axis' pair, near ^ 1
- * (bvh_internal.h): one index per axis instead of two leaves the loop
- * three general registers, which it was short of (docs/BENCH.md). */
+ * negative) and the row it leaves through. */
 typedef struct {
     vfloat org[3], inv[3], inv_exit[3];
-    int near[3];
+    int near[3], far[3];
     vfloat tmin;
 } box_ray;
 
@@ -81,7 +79,8 @@ BVH_INLINE void box_ray_setup(box_ray *q, const arbor_ray *r)
         q->org[a] = vset1(o[a]);
         q->inv[a] = vset1(inv[a]);
         q->inv_exit[a] = vset1(inv[a] * BVH_EXIT_SCALE);
-        q->near[a] = 2 * a + is_neg;
+        q->near[a] = a + 3 * is_neg;
+        q->far[a] = a + 3 - 3 * is_neg;
     }
     q->tmin = vset1(r->tmin);
 }
@@ -117,7 +116,7 @@ BVH_INLINE int wide_boxes(const bvh_wide_node *n, const box_ray *q, vfloat tmax,
 #pragma GCC unroll 3
     for (int a = 0; a < 3; a++) {
         vfloat near = (vload(n->box[q->near[a]]) - q->org[a]) * q->inv[a];
-        vfloat far = (vload(n->box[q->near[a] ^ 1]) - q->org[a]) * q->inv_exit[a];
+        vfloat far = (vload(n->box[q->far[a]]) - q->org[a]) * q->inv_exit[a];
         t_in = vmax(near, t_in);
         t_out = vmin(far, t_out);
     }

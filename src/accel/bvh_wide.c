@@ -397,8 +397,8 @@ static uint32_t fill_node(wide_ctx *x, const uint32_t *kids, int n)
     for (int c = 0; c < BVH_WIDTH; c++) {
         const bvh_node *k = c < n ? &x->t->nodes[kids[c]] : NULL;
         for (int row = 0; row < 3; row++) {
-            node->box[2 * row][c] = k ? k->bounds[row] : INFINITY;
-            node->box[2 * row + 1][c] = k ? k->bounds[row + 3] : -INFINITY;
+            node->box[row][c] = k ? k->bounds[row] : INFINITY;
+            node->box[row + 3][c] = k ? k->bounds[row + 3] : -INFINITY;
         }
         node->child[c] = BVH_REF_EMPTY;
         node->unused[c] = 0;
