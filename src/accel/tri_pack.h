@@ -73,8 +73,8 @@ SIMD_INLINE void tri_pack_lanes_of(const tri_pack_hits *h, tri_pack_lanes *out)
  * the tests take once there is a hit, so that a tie at t reaches the index
  * rule. In line, not libm's: a call in the traversal loop, even one made
  * only after a hit, clobbers every vector register, and GCC then kept the
- * ray's constants and the tree's pointers in memory for the whole loop,
- * reloading them at every node (docs/BENCH.md). */
+ * ray's constant vectors in memory for the whole loop, reloading them at
+ * every node (docs/BENCH.md). */
 SIMD_INLINE float tri_pack_next_up(float t)
 {
     uint32_t u;
@@ -154,8 +154,8 @@ SIMD_INLINE int tri_pack_eval(const float *v, const tri_ray *q, vfloat tmax, tri
  * line. The ray comes by value, so that the caller's stays in registers,
  * and tmax by pointer, as simd.h passes no vector to a call. (`unused`: a
  * file may include this header for the other helpers alone.) */
-static __attribute__((noinline, cold, unused)) int tri_pack_test_exact(const float *v, tri_ray q, const vfloat *tmax,
-                                                                tri_pack_hits *out)
+static __attribute__((noinline, cold, unused)) int tri_pack_test_exact(const float *v, tri_ray q,
+                                                                        const vfloat *tmax, tri_pack_hits *out)
 {
     return tri_pack_eval(v, &q, *tmax, out, true);
 }
