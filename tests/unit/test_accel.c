@@ -225,10 +225,10 @@ static void test_next_up_is_nextafterf(void)
                              1.0f, -1.0f, 0.1f, 3.5e-7f, 1e30f, -1e30f, FLT_MAX, -FLT_MAX};
     for (size_t i = 0; i < sizeof special / sizeof special[0]; i++)
         TEST_ASSERT_EQUAL_HEX32(float_bits(nextafterf(special[i], INFINITY)), float_bits(tri_pack_next_up(special[i])));
-    uint64_t state = 12345;
+    test_rng g;
+    test_rng_seed(&g, 12345);
     for (int i = 0; i < 1000000; i++) {
-        state = state * 6364136223846793005u + 1442695040888963407u;
-        uint32_t u = (uint32_t)(state >> 32);
+        uint32_t u = test_rng_u32(&g);
         float t;
         memcpy(&t, &u, sizeof t);
         if (!isfinite(t))
