@@ -443,6 +443,37 @@ static void test_nearly_axis_rays_far_away(void)
     arbor_mesh_free(&m);
 }
 
+/* Rays from far away (10^4 times the soup's size, on every side) aimed
+ * exactly at vertices, which are corners of the leaves' boxes, and at
+ * points of edges: the slab test's rounding, which grows with the
+ * distances, must never cull a box such a ray grazes. The soup sits off
+ * the origin, so that its coordinates are large against its boxes. */
+static void test_grazing_rays_from_afar(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    test_rng g;
+    test_rng_seed(&g, 21);
+    for (int i = 0; i < 400; i++) {
+        arbor_vec3 c = vec3(300.0f + test_rng_float(&g), -200.0f + test_rng_float(&g), test_rng_float(&g));
+        add_tri_near(&m, &g, c, 0.02f + 0.05f * test_rng_float(&g));
+    }
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    enum { N = 3000 };
+    static arbor_ray rays[N];
+    for (int i = 0; i < N; i++) {
+        uint32_t t = test_rng_u32(&g) % m.ntris;
+        arbor_vec3 a = m.verts[m.tri_verts[3 * t]], b = m.verts[m.tri_verts[3 * t + 1]];
+        float f = i % 3 == 0 ? 0.0f : test_rng_float(&g);
+        arbor_vec3 target = vec3_add(a, vec3_scale(vec3_sub(b, a), f));
+        arbor_vec3 away = vec3_scale(random_point(&g, -1.0f, 1.0f), 1e4f);
+        arbor_ray r = {vec3_add(target, away), 0.0f, vec3_scale(away, -1.0f), INFINITY};
+        rays[i] = r;
+    }
+    check_builders(&m, rays, N, 1, "grazing rays from afar");
+    arbor_mesh_free(&m);
+}
+
 static void test_tiny_and_huge(void)
 {
     arbor_mesh m;
@@ -877,6 +908,7 @@ int main(void)
     RUN_TEST(test_one_plane);
     RUN_TEST(test_axis_rays_on_box_planes);
     RUN_TEST(test_nearly_axis_rays_far_away);
+    RUN_TEST(test_grazing_rays_from_afar);
     RUN_TEST(test_tiny_and_huge);
     RUN_TEST(test_deep_spatial_run_is_bounded);
     RUN_TEST(test_options);
