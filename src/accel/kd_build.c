@@ -44,8 +44,13 @@
  *                  asked), whose cost alone ends the recursion, as the
  *                  paper's; a cap of 1 made every single triangle a leaf
  *                  in a cell the SAH would still have cut empty space off
- *   cost_traverse  15, cost_intersect 20, empty_bonus 0.2: the paper's
- *                  KT, KI and lambda = 1 - empty_bonus = 0.8 (kd_sah.c)
+ *   cost_traverse  15, cost_intersect 2.5, empty_bonus 0.2: the paper's
+ *                  KT and lambda = 1 - empty_bonus = 0.8 (kd_sah.c), and
+ *                  its KI of 20 over the KD_PACK_LANES (8) triangles a
+ *                  leaf tests at once: its triangles cost about an eighth
+ *                  of a scalar test each. Leaves grow to 10-13 triangles,
+ *                  rays take 15-25% fewer steps and the tree has 5 times
+ *                  fewer nodes (docs/BENCH.md, "k-d tree")
  *   threads        as accel.c resolves it (the pool's thread count, or
  *                  one per core without a pool)
  */
@@ -162,7 +167,7 @@ static void kd_builder_init(kd_builder *b, const arbor_mesh *m, const arbor_buil
     b->max_depth = o->max_depth > 0 ? (uint32_t)o->max_depth : kd_default_max_depth(m->ntris);
     b->max_leaf_tris = o->max_leaf_tris > 0 ? (uint32_t)o->max_leaf_tris : o->builder == ARBOR_BUILD_SAH ? 0u : 4u;
     b->cost_traverse = o->cost_traverse > 0.0f ? o->cost_traverse : 15.0f;
-    b->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : 20.0f;
+    b->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : 2.5f;
     b->empty_factor = 1.0f - (o->empty_bonus >= 0.0f ? o->empty_bonus : 0.2f);
     /* 2^-20 of the largest coordinate: several times the error of a clipped
      * coordinate, a + (c - a) s, whose terms are at most that large */
