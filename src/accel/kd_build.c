@@ -48,8 +48,8 @@
  *                  KT and lambda = 1 - empty_bonus = 0.8 (kd_sah.c), and
  *                  its KI of 20 over the KD_PACK_LANES (8) triangles a
  *                  leaf tests at once: its triangles cost about an eighth
- *                  of a scalar test each. Leaves grow to 10-13 triangles,
- *                  rays take 15-25% fewer steps and the tree has 5 times
+ *                  of a scalar test each. Leaves grow to 13-15 triangles,
+ *                  rays take 13-36% fewer steps and the tree has 15 times
  *                  fewer nodes (docs/BENCH.md, "k-d tree")
  *   threads        as accel.c resolves it (the pool's thread count, or
  *                  one per core without a pool)

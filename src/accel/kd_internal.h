@@ -82,7 +82,7 @@ static inline const uint32_t *kd_leaf_tris(const kd_node *n, const uint32_t *tri
 
 /* Triangles a leaf's pack holds: 8, as in the BVH's packs, one AVX
  * register a row (two SSE halves without AVX). With packed tests costed as
- * such (kd_build.c's KI) the SAH makes leaves of 10-13 triangles on the
+ * such (kd_build.c's KI) the SAH makes leaves of 13-15 triangles on the
  * study's models, and packs of 8 traced 6-13% more rays a second than packs
  * of 4 on castle and bunny. */
 #define KD_PACK_LANES 8
