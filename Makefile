@@ -67,7 +67,7 @@ TEST_SRC = $(wildcard tests/unit/test_*.c)
 # is what a CPU without AVX runs (and the tests can compare the two).
 # -Wno-psabi: without AVX GCC notes that 8-lane vectors would be passed
 # differently across calls; the kernels' vector helpers are all inlined.
-KERNEL_SRC = src/accel/bvh_traverse.c
+KERNEL_SRC = src/accel/bvh_traverse.c src/accel/kd_traverse.c
 KERNELS    = sse2 avx2
 KERNEL_CFLAGS_sse2 = -mno-avx -Wno-psabi
 KERNEL_CFLAGS_avx2 = -mavx2 -mfma

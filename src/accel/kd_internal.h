@@ -327,19 +327,30 @@ static inline uint64_t kd_tree_bytes(const kd_tree *t)
     return t->nnodes * sizeof *t->nodes + t->nindex * sizeof *t->tri_index + t->npacks * sizeof *t->packs;
 }
 
+/* A node's cell and depth, for a visitor (kd_traverse.c) or a walk (kd.c). */
+typedef struct {
+    arbor_aabb cell;
+    uint32_t depth;
+} kd_place;
+
+/* The cells of an inner node's children: below and above its plane. */
+static inline void kd_child_cells(const kd_place *p, uint32_t axis, float split, kd_place *below, kd_place *above)
+{
+    *below = *above = (kd_place){p->cell, p->depth + 1};
+    float *hi = axis == 0 ? &below->cell.hi.x : axis == 1 ? &below->cell.hi.y : &below->cell.hi.z;
+    float *lo = axis == 0 ? &above->cell.lo.x : axis == 1 ? &above->cell.lo.y : &above->cell.lo.z;
+    *hi = split;
+    *lo = split;
+}
+
 /* Fills stats from the finished tree and its buffer's sums. */
 void kd_fill_stats(const kd_tree *tree, const kd_sums *s, arbor_tree_stats *stats);
 
 /* The entry points behind arbor_kd_ops (kd.c); see accel_impl.h. */
 void *kd_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run *run, arbor_tree_stats *stats, arbor_err *e);
 void kd_destroy(void *impl);
-bool kd_intersect(const void *impl, arbor_ray *r, arbor_hit *h);
-bool kd_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c);
-bool kd_occluded(const void *impl, const arbor_ray *r);
-bool kd_occluded_counted(const void *impl, const arbor_ray *r, arbor_trace_counts *c);
-bool kd_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
-                         void *user);
-void kd_walk_nodes(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user);
+/* kd_traverse.c, one copy per traversal kernel (accel_impl.h). */
+extern const accel_queries kd_queries_sse2, kd_queries_avx2;
 bool kd_validate(const void *impl, const arbor_mesh *m, const arbor_tree_stats *stats, arbor_err *e);
 
 #endif

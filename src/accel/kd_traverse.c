@@ -36,6 +36,11 @@
  * tri_pack.h, whose lanes compute exactly what the scalar test computes, so
  * t, u and v are brute force's. Counted rays count triangles, not lanes.
  *
+ * This file is a traversal kernel (accel_impl.h), as bvh_traverse.c is:
+ * compiled once per instruction set, so that a pack's eight lanes are one
+ * AVX register wherever the CPU has AVX2, even in a portable build; what it
+ * exports is named by ACCEL_KERNEL_SYM.
+ *
  * Planes parallel to the ray: a zero direction component is made +0, so its
  * reciprocal is +inf and tsplit is +inf or -inf (one child, the one the
  * origin is in) or NaN when the origin lies in the plane: then both
@@ -47,6 +52,10 @@
 
 #define SIMD_LANES KD_PACK_LANES
 #include "tri_pack.h"
+
+#ifndef ACCEL_KERNEL
+#error "kd_traverse.c is a traversal kernel: the Makefile compiles it with -DACCEL_KERNEL=<name>"
+#endif
 
 /* Relative margin for the rounding of cell intervals and hit distances. */
 #define KD_SPLIT_MARGIN 0x1p-20f
@@ -83,22 +92,6 @@ static inline bool kd_clip_root(const kd_tree *tree, const arbor_ray *r, const f
     *tnear = t0 > r->tmin ? t0 : r->tmin;
     *tfar = t1 < r->tmax ? t1 : r->tmax;
     return *tnear <= *tfar;
-}
-
-/* A node's cell and depth, for a visitor. */
-typedef struct {
-    arbor_aabb cell;
-    uint32_t depth;
-} kd_place;
-
-/* The cells of an inner node's children: below and above its plane. */
-static void kd_child_cells(const kd_place *p, uint32_t axis, float split, kd_place *below, kd_place *above)
-{
-    *below = *above = (kd_place){p->cell, p->depth + 1};
-    float *hi = axis == 0 ? &below->cell.hi.x : axis == 1 ? &below->cell.hi.y : &below->cell.hi.z;
-    float *lo = axis == 0 ? &above->cell.lo.x : axis == 1 ? &above->cell.lo.y : &above->cell.lo.z;
-    *hi = split;
-    *lo = split;
 }
 
 static void kd_visit(arbor_node_fn visit, void *user, const kd_place *p, bool leaf, uint32_t tris)
@@ -259,63 +252,33 @@ done:
     return true;
 }
 
-bool kd_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
+static bool kd_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
 {
     return kd_trace(impl, r, h, NULL, false, NULL, NULL);
 }
 
-bool kd_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
+static bool kd_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
 {
     return kd_trace(impl, r, h, c, false, NULL, NULL);
 }
 
-bool kd_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
-                         void *user)
+static bool kd_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c,
+                                arbor_node_fn visit, void *user)
 {
     return kd_trace(impl, r, h, c, false, visit, user);
 }
 
-/* Every node down to max_depth, depth first, with its cell. */
-void kd_walk_nodes(const void *impl, uint32_t max_depth, arbor_node_fn fn, void *user)
-{
-    const kd_tree *tree = impl;
-    if (tree->nodes == NULL)
-        return;
-    struct {
-        uint32_t node;
-        kd_place place;
-    } stack[KD_MAX_DEPTH + 2];
-    int sp = 0;
-    stack[sp].node = 0;
-    stack[sp++].place = (kd_place){tree->bounds, 0};
-    while (sp > 0) {
-        sp--;
-        uint32_t at = stack[sp].node;
-        kd_place p = stack[sp].place;
-        const kd_node *n = &tree->nodes[at];
-        uint32_t axis = kd_node_kind(*n);
-        arbor_node_info info = {p.cell, p.depth, axis == KD_LEAF, axis == KD_LEAF ? kd_node_high(*n) : 0, 0};
-        if (!fn(user, &info))
-            return;
-        if (axis == KD_LEAF || p.depth == max_depth)
-            continue;
-        kd_place below, above;
-        kd_child_cells(&p, axis, n->split, &below, &above);
-        stack[sp].node = kd_node_high(*n);
-        stack[sp++].place = above;
-        stack[sp].node = at + 1;
-        stack[sp++].place = below;
-    }
-}
-
-bool kd_occluded(const void *impl, const arbor_ray *r)
+static bool kd_occluded(const void *impl, const arbor_ray *r)
 {
     arbor_ray copy = *r;
     return kd_trace(impl, &copy, NULL, NULL, true, NULL, NULL);
 }
 
-bool kd_occluded_counted(const void *impl, const arbor_ray *r, arbor_trace_counts *c)
+static bool kd_occluded_counted(const void *impl, const arbor_ray *r, arbor_trace_counts *c)
 {
     arbor_ray copy = *r;
     return kd_trace(impl, &copy, NULL, c, true, NULL, NULL);
 }
+
+const accel_queries ACCEL_KERNEL_SYM(kd_queries) = {kd_intersect, kd_intersect_counted, kd_occluded,
+                                                    kd_occluded_counted, kd_intersect_traced};

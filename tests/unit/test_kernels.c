@@ -1,7 +1,8 @@
 /*
  * test_kernels.c - every traversal kernel (accel_impl.h) gives brute
- * force's hits. A BVH is built once per kernel (ARBOR_KERNEL=sse2 picks the
- * SSE2 one, none the best the CPU has) over a real model, a random soup and
+ * force's hits. A BVH and a k-d tree are built once per kernel
+ * (ARBOR_KERNEL=sse2 picks the SSE2 one, none the best the CPU has) over a
+ * real model, a random soup and
  * a mesh of ties (coincident triangles: equal t, the lowest index must win),
  * and each kernel's closest hits (t, u, v, triangle) and any-hit answers
  * must equal brute force's bit for bit, for random rays and PROTOCOL.md's
@@ -20,9 +21,9 @@
 void setUp(void) {}
 void tearDown(void) {}
 
-/* Builds the BVH of m with the kernel `name` ("sse2"), or the CPU's best
- * (NULL), and checks the kernel name reported. */
-static arbor_accel *build_with(const arbor_mesh *m, const char *name)
+/* Builds the sah tree of that kind over m with the kernel `name` ("sse2"),
+ * or the CPU's best (NULL), and checks the kernel name reported. */
+static arbor_accel *build_with(const arbor_mesh *m, arbor_accel_kind kind, const char *name)
 {
     if (name != NULL)
         TEST_ASSERT_EQUAL_INT(0, setenv("ARBOR_KERNEL", name, 1));
@@ -31,7 +32,7 @@ static arbor_accel *build_with(const arbor_mesh *m, const char *name)
     if (name != NULL)
         TEST_ASSERT_EQUAL_STRING(name, arbor_accel_kernel_name());
     arbor_build_opts o;
-    arbor_build_opts_init(&o, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH);
+    arbor_build_opts_init(&o, kind, ARBOR_BUILD_SAH);
     o.threads = 1;
     arbor_err e;
     arbor_accel *a = arbor_accel_build(m, &o, &e);
@@ -50,14 +51,15 @@ static void check_rays(const arbor_mesh *m, const arbor_ray *rays, size_t n, con
     arbor_brute_intersect_many(NULL, m, rays, n, truth, found, 0);
     static const char *const kernels[] = {"sse2", NULL};
     size_t hits = 0;
-    for (size_t k = 0; k < sizeof kernels / sizeof kernels[0]; k++) {
-        arbor_accel *a = build_with(m, kernels[k]);
+    for (size_t k = 0; k < 2 * sizeof kernels / sizeof kernels[0]; k++) {
+        arbor_accel_kind kind = k % 2 == 0 ? ARBOR_ACCEL_BVH : ARBOR_ACCEL_KD;
+        arbor_accel *a = build_with(m, kind, kernels[k / 2]);
         const char *kernel = arbor_accel_kernel_name();
         for (size_t i = 0; i < n; i++) {
             arbor_ray r = rays[i];
             arbor_hit h;
             char msg[160];
-            snprintf(msg, sizeof msg, "%s, kernel %s, ray %zu", what, kernel, i);
+            snprintf(msg, sizeof msg, "%s, %s, kernel %s, ray %zu", what, arbor_accel_kind_name(kind), kernel, i);
             bool got = arbor_accel_intersect(a, &r, &h);
             TEST_ASSERT_EQUAL_MESSAGE(found[i], got, msg);
             TEST_ASSERT_EQUAL_MESSAGE(found[i], arbor_accel_occluded(a, &rays[i]), msg);
