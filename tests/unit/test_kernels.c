@@ -2,11 +2,10 @@
  * test_kernels.c - every traversal kernel (accel_impl.h) gives brute
  * force's hits. A BVH and a k-d tree are built once per kernel
  * (ARBOR_KERNEL=sse2 picks the SSE2 one, none the best the CPU has) over a
- * real model, a random soup and
- * a mesh of ties (coincident triangles: equal t, the lowest index must win),
- * and each kernel's closest hits (t, u, v, triangle) and any-hit answers
- * must equal brute force's bit for bit, for random rays and PROTOCOL.md's
- * primary rays.
+ * real model, a random soup and a mesh of ties (coincident triangles: equal
+ * t, the lowest index must win), and each kernel's closest hits (t, u, v,
+ * triangle) and any-hit answers must equal brute force's bit for bit, for
+ * random rays and PROTOCOL.md's primary rays.
  */
 #include <stdio.h>
 #include <stdlib.h>
