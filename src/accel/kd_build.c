@@ -167,7 +167,7 @@ static void kd_builder_init(kd_builder *b, const arbor_mesh *m, const arbor_buil
     b->max_depth = o->max_depth > 0 ? (uint32_t)o->max_depth : kd_default_max_depth(m->ntris);
     b->max_leaf_tris = o->max_leaf_tris > 0 ? (uint32_t)o->max_leaf_tris : o->builder == ARBOR_BUILD_SAH ? 0u : 4u;
     b->cost_traverse = o->cost_traverse > 0.0f ? o->cost_traverse : 15.0f;
-    b->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : 2.5f;
+    b->cost_intersect = o->cost_intersect > 0.0f ? o->cost_intersect : 20.0f / KD_PACK_LANES;
     b->empty_factor = 1.0f - (o->empty_bonus >= 0.0f ? o->empty_bonus : 0.2f);
     /* 2^-20 of the largest coordinate: several times the error of a clipped
      * coordinate, a + (c - a) s, whose terms are at most that large */

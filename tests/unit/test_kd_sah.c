@@ -212,7 +212,7 @@ static arbor_aabb grid_cell(test_rng *g, int flat_axis)
 
 static const kd_builder cost_models[4] = {
     {.cost_traverse = 15.0f, .cost_intersect = 20.0f, .empty_factor = 0.8f},  /* the paper's */
-    {.cost_traverse = 15.0f, .cost_intersect = 2.5f, .empty_factor = 0.8f},   /* the defaults */
+    {.cost_traverse = 15.0f, .cost_intersect = 20.0f / KD_PACK_LANES, .empty_factor = 0.8f}, /* the defaults */
     {.cost_traverse = 1.0f, .cost_intersect = 1.0f, .empty_factor = 1.0f},    /* no empty bonus */
     {.cost_traverse = 5.0f, .cost_intersect = 40.0f, .empty_factor = 0.5f},   /* cheap traversal */
 };

@@ -40,7 +40,33 @@ static arbor_accel *build_with(const arbor_mesh *m, arbor_accel_kind kind, const
     return a;
 }
 
-/* Each kernel against brute force on n rays. */
+/* Tree a (kind `kind`) against brute force's truth and found on n rays;
+ * returns the rays that hit. */
+static size_t check_tree(const arbor_accel *a, arbor_accel_kind kind, const arbor_ray *rays, size_t n,
+                         const arbor_hit *truth, const bool *found, const char *what)
+{
+    const char *kernel = arbor_accel_kernel_name();
+    size_t hits = 0;
+    for (size_t i = 0; i < n; i++) {
+        arbor_ray r = rays[i];
+        arbor_hit h;
+        char msg[160];
+        snprintf(msg, sizeof msg, "%s, %s, kernel %s, ray %zu", what, arbor_accel_kind_name(kind), kernel, i);
+        bool got = arbor_accel_intersect(a, &r, &h);
+        TEST_ASSERT_EQUAL_MESSAGE(found[i], got, msg);
+        TEST_ASSERT_EQUAL_MESSAGE(found[i], arbor_accel_occluded(a, &rays[i]), msg);
+        if (!got)
+            continue;
+        hits++;
+        TEST_ASSERT_EQUAL_UINT32_MESSAGE(truth[i].tri, h.tri, msg);
+        TEST_ASSERT_TRUE_MESSAGE(memcmp(&truth[i].t, &h.t, sizeof h.t) == 0, msg);
+        TEST_ASSERT_TRUE_MESSAGE(memcmp(&truth[i].u, &h.u, sizeof h.u) == 0, msg);
+        TEST_ASSERT_TRUE_MESSAGE(memcmp(&truth[i].v, &h.v, sizeof h.v) == 0, msg);
+    }
+    return hits;
+}
+
+/* Each kind under each kernel against brute force on n rays. */
 static void check_rays(const arbor_mesh *m, const arbor_ray *rays, size_t n, const char *what)
 {
     arbor_hit *truth = malloc(n * sizeof *truth);
@@ -50,28 +76,12 @@ static void check_rays(const arbor_mesh *m, const arbor_ray *rays, size_t n, con
     arbor_brute_intersect_many(NULL, m, rays, n, truth, found, 0);
     static const char *const kernels[] = {"sse2", NULL};
     size_t hits = 0;
-    for (size_t k = 0; k < 2 * sizeof kernels / sizeof kernels[0]; k++) {
-        arbor_accel_kind kind = k % 2 == 0 ? ARBOR_ACCEL_BVH : ARBOR_ACCEL_KD;
-        arbor_accel *a = build_with(m, kind, kernels[k / 2]);
-        const char *kernel = arbor_accel_kernel_name();
-        for (size_t i = 0; i < n; i++) {
-            arbor_ray r = rays[i];
-            arbor_hit h;
-            char msg[160];
-            snprintf(msg, sizeof msg, "%s, %s, kernel %s, ray %zu", what, arbor_accel_kind_name(kind), kernel, i);
-            bool got = arbor_accel_intersect(a, &r, &h);
-            TEST_ASSERT_EQUAL_MESSAGE(found[i], got, msg);
-            TEST_ASSERT_EQUAL_MESSAGE(found[i], arbor_accel_occluded(a, &rays[i]), msg);
-            if (!got)
-                continue;
-            hits++;
-            TEST_ASSERT_EQUAL_UINT32_MESSAGE(truth[i].tri, h.tri, msg);
-            TEST_ASSERT_TRUE_MESSAGE(memcmp(&truth[i].t, &h.t, sizeof h.t) == 0, msg);
-            TEST_ASSERT_TRUE_MESSAGE(memcmp(&truth[i].u, &h.u, sizeof h.u) == 0, msg);
-            TEST_ASSERT_TRUE_MESSAGE(memcmp(&truth[i].v, &h.v, sizeof h.v) == 0, msg);
+    for (int kind = 0; kind < ARBOR_ACCEL_KIND_COUNT; kind++)
+        for (size_t k = 0; k < sizeof kernels / sizeof kernels[0]; k++) {
+            arbor_accel *a = build_with(m, (arbor_accel_kind)kind, kernels[k]);
+            hits += check_tree(a, (arbor_accel_kind)kind, rays, n, truth, found, what);
+            arbor_accel_free(a);
         }
-        arbor_accel_free(a);
-    }
     TEST_ASSERT_TRUE_MESSAGE(hits > 0, "no ray hit: the comparison proved nothing");
     unsetenv("ARBOR_KERNEL");
     free(truth);
