@@ -442,7 +442,7 @@ static inline void bin_prim(sah_bins *s, const bin_grid *g, const bvh_prim *p)
  * centroids share a coordinate, and on the mesh's runs of neighbours. Two
  * sets halve those chains. 1 thread, median of 15 builds pinned to a core,
  * four rounds alternating with the parent: sponza 21.5-24.3 -> 19.0-21.8 ms,
- * bunny 21.8-24.7 -> 20.8-24.1, dragon (three rounds of 5) 370-377 -> 325-351.
+ * bunny 21.8-24.7 -> 20.8-24.1, dragon (three rounds of 5) 373-377 -> 325-351.
  * Written as a loop over an array of sets (four, or two), it measured
  * slower than the parent; written out, as here, faster. */
 static void bins_fill(sah_bins *s, const bin_grid *g, const bvh_prim *p, uint32_t b, uint32_t e)
