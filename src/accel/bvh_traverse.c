@@ -197,7 +197,8 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
             if (visit)
                 visit_node(visit, user, &at, false, 0, 1);
             /* an any-hit query takes the first child in lane order, whose
-             * loads wait on no order; prefetching made them slower */
+             * loads wait on no order; prefetching for it made bunny's and
+             * porsche's shadow rays 1-5% slower (dragon's 3-5% faster) */
             if (!any_hit)
                 prefetch_entered(t, n, mask);
             if (mask != 0) {
