@@ -217,9 +217,10 @@ bench: $(BUILD)/arbord
 	SHARED=$(SHARED) scripts/bench.sh
 
 # The objects that test ARBOR_HAVE_EMBREE are rebuilt, in case arbord was built before Embree was installed.
+# The archive goes too: under .SECONDARY make remakes a missing object only for a target it must remake anyway.
 bench-embree:
 	@scripts/deps.sh --embree
-	rm -f $(BUILD)/obj/src/bench/embree_peer.o $(BUILD)/arbord
+	rm -f $(BUILD)/obj/src/bench/embree_peer.o $(BUILD)/libarbor.a $(BUILD)/arbord
 	$(MAKE) EMBREE=1 $(BUILD)/arbord
 	SHARED=$(SHARED) scripts/bench.sh $(if $(EMBREE_ISA),--embree-isa $(EMBREE_ISA),--embree)
 
