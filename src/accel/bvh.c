@@ -34,6 +34,18 @@ static uint64_t bvh_tree_bytes(const bvh_tree *t)
            (uint64_t)t->nwide * sizeof(bvh_wide_node) + (uint64_t)t->npacks * sizeof(bvh_tri_pack);
 }
 
+/* Whether rays through a wide tree of that many bytes (nodes and packs)
+ * prefetch the children they enter: from BVH_PREFETCH_MIN_BYTES on, unless
+ * ARBOR_PREFETCH=0 or 1 in the environment says otherwise (for tests and
+ * measurement; read at every build, as accel.c reads ARBOR_KERNEL). */
+static bool bvh_prefetch_pick(uint64_t traversed_bytes)
+{
+    const char *force = getenv("ARBOR_PREFETCH");
+    if (force != NULL && (strcmp(force, "0") == 0 || strcmp(force, "1") == 0))
+        return force[0] == '1';
+    return traversed_bytes >= BVH_PREFETCH_MIN_BYTES;
+}
+
 /* Builds the binary tree, collapses it into the wide tree rays traverse,
  * and fills the statistics of both (but build_ms). NULL when memory runs
  * out or the build is cancelled, e filled. */
@@ -50,6 +62,8 @@ static void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run
         bvh_tree_free(t);
         return NULL;
     }
+    t->prefetch = bvh_prefetch_pick((uint64_t)t->nwide * sizeof(bvh_wide_node) +
+                                    (uint64_t)t->npacks * sizeof(bvh_tri_pack));
     stats->has_wide = t->nnodes > 0;
     if (stats->has_wide)
         bvh_wide_stats(t, &stats->wide);

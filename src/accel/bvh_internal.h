@@ -105,7 +105,22 @@ typedef struct {
     uint32_t nwide;
     uint32_t npacks;
     bvh_tri_pack *packs;      /* npacks, 64-byte aligned */
+    bool prefetch;            /* rays prefetch the children they enter (bvh_prefetch_pick) */
 } bvh_tree;
+
+/* Wide trees of at least this many bytes (nodes and packs) have their rays
+ * prefetch the children they enter (bvh_traverse.c; bvh.c's
+ * bvh_prefetch_pick decides at the build). The prefetch pays where a ray's
+ * next node would come from memory, and costs its dozen instructions per
+ * child entered where that node is in a cache anyway. Tracing one tree
+ * with and without it in alternating passes (1 thread, the AVX2-only AMD
+ * EPYC VM of docs/BENCH.md): dragon (59 MB) 10-13% faster primary and
+ * diffuse rays with it, 3-7% faster shadow rays; sponza (4.4 MB) 4-8%
+ * slower on every set, bunny (4.5 MB) within 2%; castle and galleon (under
+ * 1 MB) primary rays 5-7% slower. So the line is about a core's share of a
+ * last-level cache, and a constant: glibc's sysconf reports that VM's L3
+ * as the socket's 256 MB, not the 32 MB its cores share. */
+#define BVH_PREFETCH_MIN_BYTES (16u << 20)
 
 static inline bool bvh_ref_is_leaf(uint32_t ref) { return (ref & BVH_REF_LEAF) != 0; }
 static inline uint32_t bvh_ref_index(uint32_t ref) { return ref & ~BVH_REF_LEAF; }

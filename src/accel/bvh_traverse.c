@@ -5,7 +5,10 @@
  * One traversal (bvh_traverse) serves all three queries. It is inlined into
  * each with constant arguments: `any_hit` chooses stopping at the first hit,
  * and `counts` is a compile-time NULL in the two uncounted queries, so their
- * counting code disappears.
+ * counting code disappears. The two uncounted queries, the hot ones, hold
+ * two instances of it, with and without prefetching the children a ray
+ * enters, and take the one the tree chose when it was built (bvh.c,
+ * bvh_prefetch_pick), so that no node step tests the choice.
  *
  * This file is a traversal kernel (accel_impl.h): the Makefile compiles it
  * once per instruction set, and what it exports is named by
@@ -134,7 +137,9 @@ typedef struct {
  * ray goes into next is otherwise known only after the order's branches,
  * and its loads, issued behind them, start over whenever one mispredicts;
  * on a tree larger than the caches a diffuse ray spends more than half its
- * time waiting for memory (docs/BENCH.md, "Entered children prefetched"). */
+ * time waiting for memory (docs/BENCH.md, "Entered children prefetched").
+ * On a tree the caches hold, the dozen instructions per child only cost,
+ * so only trees of BVH_PREFETCH_MIN_BYTES or more do it (bvh_internal.h). */
 BVH_INLINE void prefetch_entered(const bvh_tree *t, const bvh_wide_node *n, int mask)
 {
     for (; mask != 0; mask &= mask - 1) {
@@ -161,12 +166,14 @@ static void visit_node(arbor_node_fn visit, void *user, const visit_place *at, b
 }
 
 /* The closest hit (any_hit false) or the first found (any_hit true) in
- * (r->tmin, r->tmax); fills *h on a hit unless h is NULL. counts, when not
+ * (r->tmin, r->tmax); fills *h on a hit unless h is NULL. prefetch: whether
+ * each node's entered children are prefetched (prefetch_entered); it
+ * changes no answer. counts, when not
  * NULL, gets the nodes visited (wide nodes and leaves: one step each, as a
  * k-d node is) and the triangles tested; visit, when not
  * NULL, each node visited (the inspector's ray path). counts and visit are
  * compile-time NULL in the plain queries, which lose their code. */
-BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit, arbor_hit *h,
+BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit, bool prefetch, arbor_hit *h,
                              arbor_trace_counts *counts, arbor_node_fn visit, void *user)
 {
     if (t->nwide == 0)
@@ -196,10 +203,7 @@ BVH_INLINE bool bvh_traverse(const bvh_tree *t, const arbor_ray *r, bool any_hit
                 counts->nodes++;
             if (visit)
                 visit_node(visit, user, &at, false, 0, 1);
-            /* an any-hit query takes the first child in lane order, whose
-             * loads wait on no order; prefetching for it made bunny's and
-             * porsche's shadow rays 1-5% slower (dragon's 3-5% faster) */
-            if (!any_hit)
+            if (prefetch)
                 prefetch_entered(t, n, mask);
             if (mask != 0) {
                 int c = __builtin_ctz(mask);
@@ -311,7 +315,9 @@ done:
 
 static bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
 {
-    if (!bvh_traverse(impl, r, false, h, NULL, NULL, NULL))
+    const bvh_tree *t = impl;
+    if (!(t->prefetch ? bvh_traverse(t, r, false, true, h, NULL, NULL, NULL)
+                      : bvh_traverse(t, r, false, false, h, NULL, NULL, NULL)))
         return false;
     r->tmax = h->t;
     return true;
@@ -319,7 +325,8 @@ static bool bvh_intersect(const void *impl, arbor_ray *r, arbor_hit *h)
 
 static bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c)
 {
-    if (!bvh_traverse(impl, r, false, h, c, NULL, NULL))
+    const bvh_tree *t = impl;
+    if (!bvh_traverse(t, r, false, t->prefetch, h, c, NULL, NULL))
         return false;
     r->tmax = h->t;
     return true;
@@ -328,7 +335,8 @@ static bool bvh_intersect_counted(const void *impl, arbor_ray *r, arbor_hit *h, 
 static bool bvh_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, arbor_trace_counts *c, arbor_node_fn visit,
                           void *user)
 {
-    if (!bvh_traverse(impl, r, false, h, c, visit, user))
+    const bvh_tree *t = impl;
+    if (!bvh_traverse(t, r, false, t->prefetch, h, c, visit, user))
         return false;
     r->tmax = h->t;
     return true;
@@ -336,12 +344,15 @@ static bool bvh_intersect_traced(const void *impl, arbor_ray *r, arbor_hit *h, a
 
 static bool bvh_occluded(const void *impl, const arbor_ray *r)
 {
-    return bvh_traverse(impl, r, true, NULL, NULL, NULL, NULL);
+    const bvh_tree *t = impl;
+    return t->prefetch ? bvh_traverse(t, r, true, true, NULL, NULL, NULL, NULL)
+                       : bvh_traverse(t, r, true, false, NULL, NULL, NULL, NULL);
 }
 
 static bool bvh_occluded_counted(const void *impl, const arbor_ray *r, arbor_trace_counts *c)
 {
-    return bvh_traverse(impl, r, true, NULL, c, NULL, NULL);
+    const bvh_tree *t = impl;
+    return bvh_traverse(t, r, true, t->prefetch, NULL, c, NULL, NULL);
 }
 
 const accel_queries ACCEL_KERNEL_SYM(bvh_queries) = {bvh_intersect, bvh_intersect_counted, bvh_occluded,

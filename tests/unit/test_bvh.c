@@ -669,6 +669,34 @@ static void test_parallel_build_matches_serial(void)
     arbor_mesh_free(&m);
 }
 
+/* Rays prefetch the children they enter in a wide tree of at least
+ * BVH_PREFETCH_MIN_BYTES (a soup of 300k triangles), not in a smaller one
+ * (bunny's), and ARBOR_PREFETCH=0 or 1 overrides the size either way.
+ * (That the choice changes no hit, test_kernels checks.) */
+static void test_prefetch_by_tree_size(void)
+{
+    arbor_mesh m[2];
+    arbor_err e;
+    TEST_ASSERT_TRUE(arbor_load_model(test_shared_model("bunny.obj"), &m[0], &e));
+    test_random_soup(&m[1], 300000, 17);
+    static const char *const forced[2] = {"1", "0"}; /* the opposite of each mesh's size */
+    for (int k = 0; k < 2; k++) {
+        arbor_tree_stats s;
+        TEST_ASSERT_EQUAL_INT(0, unsetenv("ARBOR_PREFETCH"));
+        bvh_tree *t = build_sah_tree(&m[k], 2, &s);
+        uint64_t bytes = (uint64_t)t->nwide * sizeof(bvh_wide_node) + (uint64_t)t->npacks * sizeof(bvh_tri_pack);
+        TEST_ASSERT_EQUAL(k == 1, bytes >= BVH_PREFETCH_MIN_BYTES);
+        TEST_ASSERT_EQUAL(k == 1, t->prefetch);
+        arbor_bvh_ops.destroy(t);
+        TEST_ASSERT_EQUAL_INT(0, setenv("ARBOR_PREFETCH", forced[k], 1));
+        t = build_sah_tree(&m[k], 2, &s);
+        TEST_ASSERT_EQUAL(k == 0, t->prefetch);
+        arbor_bvh_ops.destroy(t);
+        arbor_mesh_free(&m[k]);
+    }
+    TEST_ASSERT_EQUAL_INT(0, unsetenv("ARBOR_PREFETCH"));
+}
+
 /* Asserts that binary trees a and b are the same, byte for byte. */
 static void assert_same_binary_tree(const bvh_tree *a, const bvh_tree *b)
 {
@@ -921,6 +949,7 @@ int main(void)
     RUN_TEST(test_castle);
     RUN_TEST(test_bunny_two_threads);
     RUN_TEST(test_parallel_trees_match_serial);
+    RUN_TEST(test_prefetch_by_tree_size);
     RUN_TEST(test_fork_placement_matches_serial);
     return UNITY_END();
 }

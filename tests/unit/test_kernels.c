@@ -1,7 +1,9 @@
 /*
  * test_kernels.c - every traversal kernel (accel_impl.h) gives brute
  * force's hits. A BVH and a k-d tree are built once per kernel
- * (ARBOR_KERNEL=sse2 picks the SSE2 one, none the best the CPU has) over a
+ * (ARBOR_KERNEL=sse2 picks the SSE2 one, none the best the CPU has), the
+ * BVH once with and once without its rays prefetching the children they
+ * enter (ARBOR_PREFETCH: two instances of its traversal loop), over a
  * real model, a random soup and a mesh of ties (coincident triangles: equal
  * t, the lowest index must win), and each kernel's closest hits (t, u, v,
  * triangle) and any-hit answers must equal brute force's bit for bit, for
@@ -21,9 +23,11 @@ void setUp(void) {}
 void tearDown(void) {}
 
 /* Builds the sah tree of that kind over m with the kernel `name` ("sse2"),
- * or the CPU's best (NULL), and checks the kernel name reported. */
-static arbor_accel *build_with(const arbor_mesh *m, arbor_accel_kind kind, const char *name)
+ * or the CPU's best (NULL), and ARBOR_PREFETCH=prefetch ("0", "1"; the
+ * k-d tree ignores it), and checks the kernel name reported. */
+static arbor_accel *build_with(const arbor_mesh *m, arbor_accel_kind kind, const char *name, const char *prefetch)
 {
+    TEST_ASSERT_EQUAL_INT(0, setenv("ARBOR_PREFETCH", prefetch, 1));
     if (name != NULL)
         TEST_ASSERT_EQUAL_INT(0, setenv("ARBOR_KERNEL", name, 1));
     else
@@ -46,12 +50,14 @@ static size_t check_tree(const arbor_accel *a, arbor_accel_kind kind, const arbo
                          const arbor_hit *truth, const bool *found, const char *what)
 {
     const char *kernel = arbor_accel_kernel_name();
+    const char *prefetch = getenv("ARBOR_PREFETCH");
     size_t hits = 0;
     for (size_t i = 0; i < n; i++) {
         arbor_ray r = rays[i];
         arbor_hit h;
         char msg[160];
-        snprintf(msg, sizeof msg, "%s, %s, kernel %s, ray %zu", what, arbor_accel_kind_name(kind), kernel, i);
+        snprintf(msg, sizeof msg, "%s, %s, kernel %s, prefetch %s, ray %zu", what, arbor_accel_kind_name(kind),
+                 kernel, prefetch, i);
         bool got = arbor_accel_intersect(a, &r, &h);
         TEST_ASSERT_EQUAL_MESSAGE(found[i], got, msg);
         TEST_ASSERT_EQUAL_MESSAGE(found[i], arbor_accel_occluded(a, &rays[i]), msg);
@@ -75,15 +81,18 @@ static void check_rays(const arbor_mesh *m, const arbor_ray *rays, size_t n, con
     TEST_ASSERT_NOT_NULL(found);
     arbor_brute_intersect_many(NULL, m, rays, n, truth, found, 0);
     static const char *const kernels[] = {"sse2", NULL};
+    static const char *const prefetch[] = {"0", "1"};
     size_t hits = 0;
     for (int kind = 0; kind < ARBOR_ACCEL_KIND_COUNT; kind++)
-        for (size_t k = 0; k < sizeof kernels / sizeof kernels[0]; k++) {
-            arbor_accel *a = build_with(m, (arbor_accel_kind)kind, kernels[k]);
-            hits += check_tree(a, (arbor_accel_kind)kind, rays, n, truth, found, what);
-            arbor_accel_free(a);
-        }
+        for (size_t k = 0; k < sizeof kernels / sizeof kernels[0]; k++)
+            for (size_t p = 0; p < (kind == ARBOR_ACCEL_BVH ? 2u : 1u); p++) {
+                arbor_accel *a = build_with(m, (arbor_accel_kind)kind, kernels[k], prefetch[p]);
+                hits += check_tree(a, (arbor_accel_kind)kind, rays, n, truth, found, what);
+                arbor_accel_free(a);
+            }
     TEST_ASSERT_TRUE_MESSAGE(hits > 0, "no ray hit: the comparison proved nothing");
     unsetenv("ARBOR_KERNEL");
+    unsetenv("ARBOR_PREFETCH");
     free(truth);
     free(found);
 }
