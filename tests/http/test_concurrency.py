@@ -65,8 +65,11 @@ def test_build_once_20_concurrent_first_renders():
 
 
 def busy_daemon():
+    # --frame-timeout 0: the frames admitted must render, however slow the build (under TSan on a
+    # slow VM one took over the default 60 s, and a burst then rendered nothing)
     return shared("busy", lambda: Daemon([our("menger.obj"), our("cornell.obj")],
-                                         ["--threads", "1", "--queue", "1", "--max-pixels", "256M"],
+                                         ["--threads", "1", "--queue", "1", "--max-pixels", "256M",
+                                          "--frame-timeout", "0"],
                                          name="busy daemon (--threads 1 --queue 1)"))
 
 
@@ -80,8 +83,10 @@ def test_queue_full_503_at_once():
     rejected0 = metric_value(d.metrics()[0], "arbor_frames_rejected_total") or 0
 
     def one(i):
+        # 4 spp: long enough to hold the daemon through the burst, short enough that the two
+        # frames admitted render one after the other within the test's limit under TSan
         t0 = time.time()
-        r = d.post("/api/render", dict(BIG, seed=i + 1), timeout=120)
+        r = d.post("/api/render", dict(BIG, spp=4, seed=i + 1), timeout=120)
         return r, time.time() - t0
 
     res = parallel(10, one)
