@@ -31,7 +31,7 @@ static void bvh_tree_free(bvh_tree *t)
 static uint64_t bvh_tree_bytes(const bvh_tree *t)
 {
     return (uint64_t)t->nnodes * sizeof(bvh_node) + (t->tri_index != NULL ? (uint64_t)t->ntris * sizeof(uint32_t) : 0) +
-           (uint64_t)t->nwide * sizeof(bvh_wide_node) + (uint64_t)t->npacks * sizeof(bvh_tri_pack);
+           bvh_wide_bytes(t);
 }
 
 /* Whether rays through a wide tree of that many bytes (nodes and packs)
@@ -62,8 +62,7 @@ static void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run
         bvh_tree_free(t);
         return NULL;
     }
-    t->prefetch = bvh_prefetch_pick((uint64_t)t->nwide * sizeof(bvh_wide_node) +
-                                    (uint64_t)t->npacks * sizeof(bvh_tri_pack));
+    t->prefetch = bvh_prefetch_pick(bvh_wide_bytes(t));
     stats->has_wide = t->nnodes > 0;
     if (stats->has_wide)
         bvh_wide_stats(t, &stats->wide);

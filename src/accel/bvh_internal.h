@@ -122,6 +122,11 @@ typedef struct {
  * as the socket's 256 MB, not the 32 MB its cores share. */
 #define BVH_PREFETCH_MIN_BYTES (16u << 20)
 
+/* The bytes of the layout rays traverse: wide nodes and packs. */
+static inline uint64_t bvh_wide_bytes(const bvh_tree *t)
+{
+    return (uint64_t)t->nwide * sizeof(bvh_wide_node) + (uint64_t)t->npacks * sizeof(bvh_tri_pack);
+}
 static inline bool bvh_ref_is_leaf(uint32_t ref) { return (ref & BVH_REF_LEAF) != 0; }
 static inline uint32_t bvh_ref_index(uint32_t ref) { return ref & ~BVH_REF_LEAF; }
 /* The packs a leaf of that many triangles fills. */

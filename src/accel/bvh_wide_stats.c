@@ -59,7 +59,7 @@ static void add_node(wide_sums *x, uint32_t w, arbor_aabb box, uint32_t depth)
 void bvh_wide_stats(const bvh_tree *t, arbor_layout_stats *s)
 {
     *s = (arbor_layout_stats){0};
-    s->bytes = (uint64_t)t->nwide * sizeof(bvh_wide_node) + (uint64_t)t->npacks * sizeof(bvh_tri_pack);
+    s->bytes = bvh_wide_bytes(t);
     if (t->nwide == 0)
         return;
     arbor_aabb root = bvh_wide_box(&t->wide[0]);

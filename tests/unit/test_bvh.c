@@ -684,8 +684,7 @@ static void test_prefetch_by_tree_size(void)
         arbor_tree_stats s;
         TEST_ASSERT_EQUAL_INT(0, unsetenv("ARBOR_PREFETCH"));
         bvh_tree *t = build_sah_tree(&m[k], 2, &s);
-        uint64_t bytes = (uint64_t)t->nwide * sizeof(bvh_wide_node) + (uint64_t)t->npacks * sizeof(bvh_tri_pack);
-        TEST_ASSERT_EQUAL(k == 1, bytes >= BVH_PREFETCH_MIN_BYTES);
+        TEST_ASSERT_EQUAL(k == 1, bvh_wide_bytes(t) >= BVH_PREFETCH_MIN_BYTES);
         TEST_ASSERT_EQUAL(k == 1, t->prefetch);
         arbor_bvh_ops.destroy(t);
         TEST_ASSERT_EQUAL_INT(0, setenv("ARBOR_PREFETCH", forced[k], 1));
