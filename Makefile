@@ -179,9 +179,11 @@ TSAN_LEAVE_OUT = $(addprefix $(BUILD)/tests/,test_accel test_kd test_bvh test_be
 SAN_LEAVE_OUT = $(if $(filter thread,$(SAN)),$(TSAN_LEAVE_OUT) $(BUILD)/tests/test_alloc_fail)
 TEST_RUN = $(if $(SAN),$(filter-out $(SAN_LEAVE_OUT),$(TEST_BIN) $(SUITES)),$(TEST_BIN) $(SUITES))
 
+# Unity binaries run this many at a time (tests/run.sh); the suites one at a time.
+TEST_JOBS ?= $(shell nproc 2>/dev/null || echo 1)
 test: $(BUILD)/arbord $(TEST_BIN)
 	@$(if $(SAN),echo "SAN=$(SAN) leaves out: $(SAN_LEAVE_OUT) (see the Makefile)")
-	@$(SAN_ENV) ARBORD=$(abspath $(BUILD)/arbord) ARBOR_SHARED_MODELS=$(SHARED)/models tests/run.sh $(TEST_RUN)
+	@$(SAN_ENV) ARBORD=$(abspath $(BUILD)/arbord) ARBOR_SHARED_MODELS=$(SHARED)/models ARBOR_TEST_JOBS=$(TEST_JOBS) tests/run.sh $(TEST_RUN)
 
 # The daemon on the repository's models/ and web/ (PORT=8080 by default); Ctrl-C stops it.
 PORT ?= 8080

@@ -6,30 +6,47 @@
 # count as skipped, never as passed. A program that dies without a summary
 # counts as one failure.
 #
+# Unity binaries run ARBOR_TEST_JOBS at a time (1 when unset): each is one
+# process with no daemon, port or timing of its own, and most spend their
+# time on one core (brute force against the real models), so on two cores
+# two of them take about the time of one. The suites (a folder's run.sh or
+# run.py: a real daemon, a real browser) run after them, one at a time, with
+# the machine to themselves. Results print in the order given either way.
+#
 # A skip whose reason names the shared models folder (ARBOR_SHARED_MODELS,
 # or "shared/models") while that folder exists is printed as a line
 # "SKIP-SHARED: PROGRAM: REASON" before the summary: the test could have run
 # and did not. It still counts as skipped here; .ci/run fails on such lines.
 set -u
 shared_dir=${ARBOR_SHARED_MODELS:-}
+jobs=${ARBOR_TEST_JOBS:-1}
 passed=0
 failed=0
 skipped=0
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+
+is_suite() { case "$1" in */run.*) return 0 ;; *) return 1 ;; esac; }
 # A suite's runner is named by its folder (tests/http/run.py is http), a Unity binary by itself.
 name_of() {
-    case "$1" in
-        */run.*) basename "$(dirname "$1")" ;;
-        *) basename "$1" ;;
-    esac
+    if is_suite "$1"; then basename "$(dirname "$1")"; else basename "$1"; fi
 }
-for bin in "$@"; do
-    log=$(mktemp)
+
+# Runs program $2 into $work/$1.log, its exit status and seconds into $work/$1.rc and .secs.
+run_one() {
+    local i=$1 bin=$2 start rc
     start=$(date +%s)
-    # Say what is running: some suites take minutes and silence looks like a hang.
-    echo "run  $(name_of "$bin") ..."
-    "$bin" >"$log" 2>&1
+    "$bin" >"$work/$i.log" 2>&1
     rc=$?
-    secs=$(( $(date +%s) - start ))
+    echo $(( $(date +%s) - start )) >"$work/$i.secs"
+    echo "$rc" >"$work/$i.rc"
+}
+
+# Adds program $2's results (run by run_one as number $1) to the sums and says how it went.
+report() {
+    local i=$1 bin=$2 log="$work/$1.log" rc secs summary n f k
+    rc=$(cat "$work/$i.rc")
+    secs=$(cat "$work/$i.secs")
     summary=$(grep -E '^[0-9]+ Tests [0-9]+ Failures [0-9]+ Ignored' "$log" | tail -n 1)
     if [ -n "$summary" ]; then
         n=$(echo "$summary" | awk '{print $1}')
@@ -59,7 +76,42 @@ for bin in "$@"; do
                 sed "s|^|SKIP-SHARED: $(basename "$bin"): |"
         fi
     fi
-    rm -f "$log"
+}
+
+programs=("$@")
+units=()
+for i in "${!programs[@]}"; do
+    is_suite "${programs[$i]}" || units+=("$i")
+done
+# Reports the Unity binaries that have finished, in order, up to the first still running.
+reported=0
+report_finished() {
+    while [ "$reported" -lt "${#units[@]}" ] && [ -f "$work/${units[$reported]}.rc" ]; do
+        report "${units[$reported]}" "${programs[${units[$reported]}]}"
+        reported=$((reported + 1))
+    done
+}
+# The Unity binaries, jobs at a time; say what starts, since some take
+# minutes and silence looks like a hang.
+running=0
+for i in "${units[@]}"; do
+    if [ "$running" -ge "$jobs" ]; then
+        wait -n
+        running=$((running - 1))
+        report_finished
+    fi
+    echo "run  $(name_of "${programs[$i]}") ..."
+    run_one "$i" "${programs[$i]}" &
+    running=$((running + 1))
+done
+wait
+report_finished
+for i in "${!programs[@]}"; do
+    bin=${programs[$i]}
+    is_suite "$bin" || continue
+    echo "run  $(name_of "$bin") ..."
+    run_one "$i" "$bin"
+    report "$i" "$bin"
 done
 echo "$passed passed, $failed failed, $skipped skipped"
 [ "$failed" -eq 0 ]
