@@ -231,14 +231,16 @@ asan:
 
 # libFuzzer (clang, installed by scripts/deps.sh --fuzz): every target of
 # FUZZ_TARGETS under ASan and UBSan in build/fuzz, FUZZ_SECONDS each, from
-# its seed corpus tests/fuzz/corpus/<target> (tests/fuzz/run.sh).
+# its seed corpus tests/fuzz/corpus/<target> (tests/fuzz/run.sh), FUZZ_JOBS
+# targets at a time.
 FUZZ_SECONDS ?= 60
+FUZZ_JOBS ?= $(shell nproc 2>/dev/null || echo 1)
 fuzz:
 	@scripts/deps.sh --fuzz
 	@$(MAKE) --no-print-directory CC=clang BUILD=build/fuzz OPT="-O1 -g -fno-omit-frame-pointer" \
 	    SANFLAGS="-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all" \
 	    $(FUZZ_TARGETS:%=build/fuzz/fuzzers/fuzz_%)
-	@tests/fuzz/run.sh $(FUZZ_SECONDS) build/fuzz $(FUZZ_TARGETS)
+	@ARBOR_FUZZ_JOBS=$(FUZZ_JOBS) tests/fuzz/run.sh $(FUZZ_SECONDS) build/fuzz $(FUZZ_TARGETS)
 
 # cppcheck and clang-tidy on src/ (installed by scripts/deps.sh --lint); the
 # checks and why are in tests/lint/run.sh and .clang-tidy.

@@ -18,6 +18,7 @@
 # "SKIP-SHARED: PROGRAM: REASON" before the summary: the test could have run
 # and did not. It still counts as skipped here; .ci/run fails on such lines.
 set -u
+. "$(dirname "$0")/parallel.sh"
 shared_dir=${ARBOR_SHARED_MODELS:-}
 jobs=${ARBOR_TEST_JOBS:-1}
 passed=0
@@ -32,21 +33,24 @@ name_of() {
     if is_suite "$1"; then basename "$(dirname "$1")"; else basename "$1"; fi
 }
 
-# Runs program $2 into $work/$1.log, its exit status and seconds into $work/$1.rc and .secs.
+# Runs program $2 into $work/NAME.log, its exit status and seconds into $work/NAME.rc;
+# says what starts, since some take minutes and silence looks like a hang.
 run_one() {
-    local i=$1 bin=$2 start rc
+    local bin=$2 name start rc
+    name=$(name_of "$bin")
+    echo "run  $name ..."
     start=$(date +%s)
-    "$bin" >"$work/$i.log" 2>&1
+    "$bin" >"$work/$name.log" 2>&1
     rc=$?
-    echo $(( $(date +%s) - start )) >"$work/$i.secs"
-    echo "$rc" >"$work/$i.rc"
+    echo "$rc $(( $(date +%s) - start ))" >"$work/$name.rc"
 }
 
-# Adds program $2's results (run by run_one as number $1) to the sums and says how it went.
+# Adds program $2's results (run_one has run it) to the sums and says how it went.
 report() {
-    local i=$1 bin=$2 log="$work/$1.log" rc secs summary n f k
-    rc=$(cat "$work/$i.rc")
-    secs=$(cat "$work/$i.secs")
+    local bin=$2 name log rc secs summary n f k
+    name=$(name_of "$bin")
+    log=$work/$name.log
+    read -r rc secs <"$work/$name.rc"
     summary=$(grep -E '^[0-9]+ Tests [0-9]+ Failures [0-9]+ Ignored' "$log" | tail -n 1)
     if [ -n "$summary" ]; then
         n=$(echo "$summary" | awk '{print $1}')
@@ -62,11 +66,11 @@ report() {
     failed=$((failed + f))
     skipped=$((skipped + k))
     if [ "$f" -ne 0 ]; then
-        echo "FAIL $(name_of "$bin") (exit $rc, ${secs}s):"
+        echo "FAIL $name (exit $rc, ${secs}s):"
         grep -E ':FAIL|Segmentation|Assert|error|rror:|^not ok' "$log" | head -n 40
         [ -z "$summary" ] && tail -n 20 "$log"
     else
-        echo "ok   $(name_of "$bin"): $n tests, $k skipped (${secs}s)"
+        echo "ok   $name: $n tests, $k skipped (${secs}s)"
     fi
     if [ "$k" -ne 0 ]; then
         grep -E ':IGNORE|SKIP|skipped' "$log" | head -n 10
@@ -78,40 +82,14 @@ report() {
     fi
 }
 
-programs=("$@")
+
 units=()
-for i in "${!programs[@]}"; do
-    is_suite "${programs[$i]}" || units+=("$i")
+suites=()
+for bin in "$@"; do
+    if is_suite "$bin"; then suites+=("$bin"); else units+=("$bin"); fi
 done
-# Reports the Unity binaries that have finished, in order, up to the first still running.
-reported=0
-report_finished() {
-    while [ "$reported" -lt "${#units[@]}" ] && [ -f "$work/${units[$reported]}.rc" ]; do
-        report "${units[$reported]}" "${programs[${units[$reported]}]}"
-        reported=$((reported + 1))
-    done
-}
-# The Unity binaries, jobs at a time; say what starts, since some take
-# minutes and silence looks like a hang.
-running=0
-for i in "${units[@]}"; do
-    if [ "$running" -ge "$jobs" ]; then
-        wait -n
-        running=$((running - 1))
-        report_finished
-    fi
-    echo "run  $(name_of "${programs[$i]}") ..."
-    run_one "$i" "${programs[$i]}" &
-    running=$((running + 1))
-done
-wait
-report_finished
-for i in "${!programs[@]}"; do
-    bin=${programs[$i]}
-    is_suite "$bin" || continue
-    echo "run  $(name_of "$bin") ..."
-    run_one "$i" "$bin"
-    report "$i" "$bin"
-done
+# The Unity binaries, jobs at a time, then the suites alone.
+run_in_order "$jobs" run_one report "${units[@]}"
+run_in_order 1 run_one report "${suites[@]}"
 echo "$passed passed, $failed failed, $skipped skipped"
 [ "$failed" -eq 0 ]

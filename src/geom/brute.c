@@ -19,7 +19,7 @@ bool arbor_brute_intersect(const arbor_mesh *m, arbor_ray *r, arbor_hit *h)
         /* the test takes t < tmax only, and tmax is the nearest hit so far:
          * a later (higher) index at the same t is not taken, so the lowest
          * index wins a tie (test_exact checks it by enumeration) */
-        if (arbor_triangle_intersect(r, &p, a, b, c, r->tmax, &t, &u, &v)) {
+        if (arbor_triangle_intersect_bulk(r, &p, a, b, c, r->tmax, &t, &u, &v)) {
             r->tmax = t;
             h->t = t;
             h->u = u;
@@ -39,7 +39,7 @@ bool arbor_brute_occluded(const arbor_mesh *m, const arbor_ray *r)
         arbor_vec3 a, b, c;
         float t, u, v;
         arbor_mesh_tri(m, i, &a, &b, &c);
-        if (arbor_triangle_intersect(r, &p, a, b, c, r->tmax, &t, &u, &v))
+        if (arbor_triangle_intersect_bulk(r, &p, a, b, c, r->tmax, &t, &u, &v))
             return true;
     }
     return false;

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # tests/fuzz/run.sh SECONDS BUILD TARGET... - runs each libFuzzer target
-# (BUILD/fuzzers/fuzz_TARGET, built by make fuzz) for SECONDS, one after the
-# other (the machine's cores are shared), and prints one line per target.
+# (BUILD/fuzzers/fuzz_TARGET, built by make fuzz) for SECONDS, and prints
+# one line per target, in the order given. ARBOR_FUZZ_JOBS targets (1 when
+# unset) run at once: each fuzzer is one process on one core, so on two
+# cores two of them each get as many inputs per second as one alone.
 #
 # Inputs: the committed seeds and regression inputs in
 # tests/fuzz/corpus/TARGET (libFuzzer runs every one of them first), and
@@ -20,13 +22,16 @@ seconds=$1
 build=$2
 shift 2
 here=$(cd "$(dirname "$0")" && pwd)
+. "$here/../parallel.sh"
+jobs=${ARBOR_FUZZ_JOBS:-1}
 failed=0
 mkdir -p "$build/crashes" "$build/logs"
-for t in "$@"; do
-    corpus=$build/corpus/$t
-    mkdir -p "$corpus"
-    args=(-max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1
-          -artifact_prefix="$build/crashes/$t-")
+
+# Runs target $2 for $seconds into its log; its exit status and seconds into $build/logs/$2.rc.
+fuzz_one() {
+    local t=$2 corpus=$build/corpus/$2 start rc
+    local args=(-max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1
+                -artifact_prefix="$build/crashes/$t-")
     case "$t" in
         obj) args+=(-dict="$here/obj.dict" -max_len=16384) ;;
         ply) args+=(-max_len=16384) ;;
@@ -34,11 +39,17 @@ for t in "$@"; do
         static) args+=(-dict="$here/static.dict") ;;
         upload) args+=(-dict="$here/obj.dict" -max_len=16384) ;;
     esac
-    log=$build/logs/$t.log
+    mkdir -p "$corpus"
     start=$(date +%s)
-    "$build/fuzzers/fuzz_$t" "${args[@]}" "$corpus" "$here/corpus/$t" >"$log" 2>&1
+    "$build/fuzzers/fuzz_$t" "${args[@]}" "$corpus" "$here/corpus/$t" >"$build/logs/$t.log" 2>&1
     rc=$?
-    secs=$(( $(date +%s) - start ))
+    echo "$rc $(( $(date +%s) - start ))" >"$build/logs/$t.rc"
+}
+
+# Says how target $2 went (fuzz_one has finished it).
+report() {
+    local t=$2 corpus=$build/corpus/$2 log=$build/logs/$2.log rc secs runs cov
+    read -r rc secs <"$build/logs/$t.rc"
     runs=$(grep -oE 'stat::number_of_executed_units: [0-9]+' "$log" | awk '{print $2}')
     cov=$(grep -oE 'cov: [0-9]+' "$log" | tail -n 1 | awk '{print $2}')
     if [ "$rc" -eq 0 ]; then
@@ -48,5 +59,7 @@ for t in "$@"; do
         echo "fuzz $t: FAILED (exit $rc after ${secs}s); log $log:"
         grep -E 'ERROR|WARNING|check failed|runtime error|SUMMARY|Test unit written|^    #[0-9]+ ' "$log" | head -n 40
     fi
-done
+}
+
+run_in_order "$jobs" fuzz_one report "$@"
 exit "$failed"
