@@ -32,11 +32,12 @@ ifneq ($(SAN),)
 BUILD   ?= build/san-$(subst $(comma),-,$(SAN))
 OPT     ?= -O1 -g -fno-omit-frame-pointer
 SANFLAGS ?= -fsanitize=$(SAN) -fno-sanitize-recover=all
-# Brute force is the tests' oracle, O(rays x triangles): instrumented, it is
-# most of a sanitizer run's time (test_accel under ASan: 13 minutes, 3 with
-# brute force uninstrumented), and its loop only reads a validated mesh and writes
-# the caller's answers. It is built as in the plain run so the sanitizers
-# spend their time on the trees and the daemon (docs/RELIABILITY.md).
+# Brute force is the tests' oracle, O(rays x triangles): instrumented, it
+# is most of a sanitizer run's time (test_accel under ASan: 13 minutes, 3
+# with brute force uninstrumented), and its loop only reads a validated mesh
+# and writes the caller's answers. It is built as in the plain run so the
+# sanitizers spend their time on the trees and the daemon
+# (docs/RELIABILITY.md).
 $(BUILD)/obj/src/geom/brute.o: OPT = -O2 -g -fno-omit-frame-pointer
 $(BUILD)/obj/src/geom/brute.o: SANFLAGS =
 endif

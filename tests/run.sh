@@ -33,10 +33,10 @@ name_of() {
     if is_suite "$1"; then basename "$(dirname "$1")"; else basename "$1"; fi
 }
 
-# Runs program $2 into $work/NAME.log, its exit status and seconds into $work/NAME.rc;
+# Runs program $1 into $work/NAME.log, its exit status and seconds into $work/NAME.rc;
 # says what starts, since some take minutes and silence looks like a hang.
 run_one() {
-    local bin=$2 name start rc
+    local bin=$1 name start rc
     name=$(name_of "$bin")
     echo "run  $name ..."
     start=$(date +%s)
@@ -45,9 +45,9 @@ run_one() {
     echo "$rc $(( $(date +%s) - start ))" >"$work/$name.rc"
 }
 
-# Adds program $2's results (run_one has run it) to the sums and says how it went.
+# Adds program $1's results (run_one has run it) to the sums and says how it went.
 report() {
-    local bin=$2 name log rc secs summary n f k
+    local bin=$1 name log rc secs summary n f k
     name=$(name_of "$bin")
     log=$work/$name.log
     read -r rc secs <"$work/$name.rc"
@@ -81,7 +81,6 @@ report() {
         fi
     fi
 }
-
 
 units=()
 suites=()

@@ -27,9 +27,9 @@ jobs=${ARBOR_FUZZ_JOBS:-1}
 failed=0
 mkdir -p "$build/crashes" "$build/logs"
 
-# Runs target $2 for $seconds into its log; its exit status and seconds into $build/logs/$2.rc.
+# Runs target $1 for $seconds into its log; its exit status and seconds into $build/logs/$1.rc.
 fuzz_one() {
-    local t=$2 corpus=$build/corpus/$2 start rc
+    local t=$1 corpus=$build/corpus/$1 start rc
     local args=(-max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1
                 -artifact_prefix="$build/crashes/$t-")
     case "$t" in
@@ -46,9 +46,9 @@ fuzz_one() {
     echo "$rc $(( $(date +%s) - start ))" >"$build/logs/$t.rc"
 }
 
-# Says how target $2 went (fuzz_one has finished it).
+# Says how target $1 went (fuzz_one has finished it).
 report() {
-    local t=$2 corpus=$build/corpus/$2 log=$build/logs/$2.log rc secs runs cov
+    local t=$1 corpus=$build/corpus/$1 log=$build/logs/$1.log rc secs runs cov
     read -r rc secs <"$build/logs/$t.rc"
     runs=$(grep -oE 'stat::number_of_executed_units: [0-9]+' "$log" | awk '{print $2}')
     cov=$(grep -oE 'cov: [0-9]+' "$log" | tail -n 1 | awk '{print $2}')
