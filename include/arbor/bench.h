@@ -55,7 +55,9 @@ typedef struct {
     char model[ARBOR_BENCH_MODEL_MAX];
     double scale;                 /* opts.scale: the factor the mesh was measured at */
     uint32_t triangles;
-    const char *accel, *builder;  /* "bvh"/"kd" and a builder name, or "embree" and "default" */
+    const char *accel, *builder;  /* "bvh"/"kd" and a builder name, or "embree" and its mode
+                                   * (arbor_embree_mode: "default", or "robust" with
+                                   * opts.embree_robust) */
     const char *kernel;           /* the traversal kernel the tree traced with (arbor_accel_kernel_name:
                                    * "avx2", "sse2"); in Embree's row opts.embree_isa, its limit
                                    * (NULL: Embree picked the best for the CPU) */
@@ -86,6 +88,8 @@ typedef struct {
                                           * passes beside it */
     const char *embree_isa;              /* NULL: Embree's kernels for the best ISA the CPU has;
                                           * else the highest it may use (arbor_embree_build) */
+    bool embree_robust;                  /* with embree: Embree in its robust mode
+                                          * (arbor_embree_build) */
     float scale;                         /* measure the mesh scaled by this power of two (see above) */
     arbor_pool *pool;                    /* builds, renders, traces on it; NULL: a pool of `threads`
                                           * for the call. Figures at N threads mean N threads only

@@ -211,6 +211,7 @@ typedef struct {
     const arbor_mesh *mesh;
     int threads;
     const char *max_isa;
+    bool robust;
     arbor_embree_peer *peer; /* the last one built */
 } embree_measure;
 
@@ -218,7 +219,7 @@ static bool measure_embree_build(void *ctx, double *value, arbor_err *e)
 {
     embree_measure *m = ctx;
     arbor_embree_free(m->peer);
-    m->peer = arbor_embree_build(m->mesh, m->threads, m->max_isa, value, e);
+    m->peer = arbor_embree_build(m->mesh, m->threads, m->max_isa, m->robust, value, e);
     return m->peer != NULL;
 }
 
@@ -395,7 +396,7 @@ static void embree_row(bench_run *b)
 {
     const embree_side *x = b->embree;
     arbor_bench_row *row = &b->rows[b->done];
-    row_init(b, row, "embree", "default");
+    row_init(b, row, "embree", arbor_embree_mode(x->measure.peer));
     row->kernel = b->o->embree_isa;
     row->build_ms = median_of(x->samples[EMBREE_BUILD], x->nsamples[EMBREE_BUILD]);
     if (b->mesh->ntris > 0)
@@ -462,7 +463,7 @@ static embree_side *embree_side_new(const bench_run *b, size_t trees)
     embree_side *x = calloc(1, sizeof *x);
     if (x == NULL)
         return NULL;
-    x->measure = (embree_measure){b->mesh, b->threads, b->o->embree_isa, NULL};
+    x->measure = (embree_measure){b->mesh, b->threads, b->o->embree_isa, b->o->embree_robust, NULL};
     bool ok = (x->beside = calloc(trees, sizeof *x->beside)) != NULL;
     for (int k = 0; k < 1 + ARBOR_SET_COUNT; k++)
         ok = ok && (x->samples[k] = malloc(trees * (size_t)b->o->runs * sizeof(double))) != NULL;

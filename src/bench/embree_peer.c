@@ -67,8 +67,8 @@ static bool add_mesh(arbor_embree_peer *p, const arbor_mesh *m, arbor_err *e)
     return true;
 }
 
-arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, const char *max_isa, double *commit_ms,
-                                      arbor_err *e)
+arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, const char *max_isa, bool robust,
+                                      double *commit_ms, arbor_err *e)
 {
     arbor_embree_peer *p = calloc(1, sizeof *p);
     if (p == NULL) {
@@ -93,6 +93,8 @@ arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, const ch
     rtcSetDeviceErrorFunction(p->device, on_device_error, p);
     rtcSetDeviceMemoryMonitorFunction(p->device, on_device_memory, p);
     p->scene = rtcNewScene(p->device);
+    if (p->scene != NULL && robust)
+        rtcSetSceneFlags(p->scene, RTC_SCENE_FLAG_ROBUST);
     bool ok = p->scene != NULL && add_mesh(p, m, &local);
     long long before = atomic_load(&p->allocated);
     double t0 = arbor_now_ms();
@@ -116,6 +118,11 @@ arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, const ch
 uint64_t arbor_embree_bvh_bytes(const arbor_embree_peer *p)
 {
     return p->bvh_bytes;
+}
+
+const char *arbor_embree_mode(const arbor_embree_peer *p)
+{
+    return p != NULL && (rtcGetSceneFlags(p->scene) & RTC_SCENE_FLAG_ROBUST) ? "robust" : "default";
 }
 
 void arbor_embree_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)
@@ -175,12 +182,13 @@ bool arbor_embree_available(void)
     return false;
 }
 
-arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, const char *max_isa, double *commit_ms,
-                                      arbor_err *e)
+arbor_embree_peer *arbor_embree_build(const arbor_mesh *m, int threads, const char *max_isa, bool robust,
+                                      double *commit_ms, arbor_err *e)
 {
     (void)m;
     (void)threads;
     (void)max_isa;
+    (void)robust;
     *commit_ms = 0.0;
     arbor_fail(e, ARBOR_ERR_INVALID, "built without Embree; run `make bench-embree`");
     return NULL;
@@ -190,6 +198,12 @@ uint64_t arbor_embree_bvh_bytes(const arbor_embree_peer *p)
 {
     (void)p;
     return 0;
+}
+
+const char *arbor_embree_mode(const arbor_embree_peer *p)
+{
+    (void)p;
+    return "default";
 }
 
 void arbor_embree_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)

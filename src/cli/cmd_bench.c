@@ -43,6 +43,9 @@ static void usage(FILE *out)
             "  --embree          add Intel Embree's row and each row's ratio to it\n"
             "  --embree-isa ISA  --embree, with the best kernels Embree may use: sse2, sse4.2,\n"
             "                    avx, avx2 or avx512 (default: the best the CPU has)\n"
+            "  --embree-robust   --embree, in Embree's robust mode (RTC_SCENE_FLAG_ROBUST: no\n"
+            "                    box lost to rounding, no shortcut at triangle edges), the\n"
+            "                    Embree nearest to arbor's exactness; its row's builder is \"robust\"\n"
             "  --scale F         measure each model scaled by F, a power of two (1024, 1/1024,\n"
             "                    0.0009765625): exact, so hits and distances (times F) stay the same\n"
             "  --parse           instead: time the OBJ parser on each model's text in memory\n",
@@ -287,6 +290,8 @@ static int parse_args(int argc, char **argv, bench_args *a)
             return 0;
         } else if (strcmp(opt, "--embree") == 0) {
             a->opts.embree = true;
+        } else if (strcmp(opt, "--embree-robust") == 0) {
+            a->opts.embree = a->opts.embree_robust = true;
         } else if (strcmp(opt, "--parse") == 0) {
             a->parse = true;
         } else if (strcmp(opt, "--model") == 0 || strcmp(opt, "--accel") == 0 || strcmp(opt, "--builder") == 0 ||

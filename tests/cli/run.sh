@@ -118,6 +118,18 @@ assert rows[1]["primary_hits"] == rows[0]["primary_hits"] > 0, rows
 EOF
 }
 
+# --embree-robust alone asks for Embree's row, in its robust mode.
+embree_robust_row() {
+    "$arbord" bench --model "$model" --accel bvh --builder sah --runs 1 --embree-robust --format json \
+        > "$tmp/robust.json" 2>"$tmp/robust.err" || { grep -q "built without Embree" "$tmp/robust.err"; return; }
+    python3 - "$tmp/robust.json" <<'EOF'
+import json, sys
+rows = [json.loads(l) for l in open(sys.argv[1])]
+assert [(r["accel"], r["builder"]) for r in rows] == [("bvh", "sah"), ("embree", "robust")], rows
+assert rows[1]["primary_hits"] == rows[0]["primary_hits"] > 0, rows
+EOF
+}
+
 # The keys scripts/bench_tables.py and users' scripts read.
 json_keys_stay() {
     "$arbord" stats --model "$model" --accel kd --builder sah --json > "$tmp/stats.json" &&
@@ -208,6 +220,7 @@ check render_never_removes_what_it_did_not_make render_never_removes_what_it_did
 check threads_zero_is_documented threads_zero_is_documented
 check json_keys_stay json_keys_stay
 check embree_isa_is_checked_and_reported embree_isa_is_checked_and_reported
+check embree_robust_row embree_robust_row
 check bench_tables_read_bench_output bench_tables_read_bench_output
 check deps_reads_both_apt_formats deps_reads_both_apt_formats
 echo
