@@ -293,11 +293,14 @@ static bool read_bench(http_req *r, const cJSON *body, job *j)
         }
         j->opts.runs = (int)runs->valuedouble;
     }
-    if (embree != NULL && !cJSON_IsBool(embree)) {
-        http_reply_error(r, 400, "bad_request", "embree must be true or false");
+    /* "robust": Embree in its robust mode, as arbord bench --embree-robust */
+    bool robust = cJSON_IsString(embree) && strcmp(embree->valuestring, "robust") == 0;
+    if (embree != NULL && !cJSON_IsBool(embree) && !robust) {
+        http_reply_error(r, 400, "bad_request", "embree must be true, false or \"robust\"");
         return false;
     }
-    j->opts.embree = cJSON_IsTrue(embree);
+    j->opts.embree = cJSON_IsTrue(embree) || robust;
+    j->opts.embree_robust = robust;
     j->opts.threads = r->srv->config.threads;
     snprintf(j->model_name, sizeof j->model_name, "%s", model->valuestring);
     return true;

@@ -59,6 +59,25 @@ def test_bench_job_runs_to_done():
 
 
 @test
+def test_bench_job_beside_robust_embree():
+    """"embree": "robust" adds Embree's row in its robust mode (named so by what Embree reports)
+    with the tree's primary hits, and the tree row's ratios to it."""
+    d = main_daemon()
+    j = expect_json(d.post("/api/bench", {"model": "sphere", "accel": ["bvh"], "builder": ["sah"], "runs": 1,
+                                          "embree": "robust"}), 202)
+    job, _ = _poll(d, j["id"], ("done", "failed", "cancelled"), 120)
+    if job["state"] == "failed" and "built without Embree" in (job.get("error") or ""):
+        return
+    eq(job["state"], "done", "final state (error %r)" % job.get("error"))
+    eq([(x["accel"], x["builder"]) for x in job["rows"]], [("bvh", "sah"), ("embree", "robust")], "rows")
+    tree, peer = job["rows"]
+    check(peer["primary_hits"] == tree["primary_hits"] > 0, "primary hits %r vs Embree's %r"
+          % (tree["primary_hits"], peer["primary_hits"]))
+    for s in ("primary", "diffuse", "shadow"):
+        check(tree[s + "_ratio"] > 0, "%s_ratio %r" % (s, tree[s + "_ratio"]))
+
+
+@test
 def test_bench_job_cancel():
     d = main_daemon()
     j = expect_json(d.post("/api/bench", {"model": "menger", "accel": ["bvh", "kd"],
