@@ -2,7 +2,8 @@
 // progress bar, then one SVG bar chart per measure (eight bars each, ours;
 // rates and the work per diffuse ray behind them),
 // with the study's figures beside ours for galleon and castle and Embree's
-// figure as a line where the daemon measured it.
+// figure as a line where the job measured it (the "Beside" choice: Embree at
+// its default or in its robust mode, sent as the job's `embree`).
 
 import * as api from './api.js';
 import { STUDY_SOURCE, studyFigure, hasStudy } from './study.js';
@@ -66,6 +67,7 @@ export class Compare {
             accel: ['bvh', 'kd'],
             builder: ['spatial', 'median', 'mean', 'sah'],
             runs: Number($('cmp-runs').value) || 1,
+            embree: { embree: true, robust: 'robust' }[$('cmp-peer').value] || false,
         };
         let j;
         try {
@@ -168,7 +170,7 @@ function chartHTML(c, model, ours, embree, study, partial) {
     const values = rows.flatMap((r) => [r.v, r.s]).concat(e === null ? [] : [e]).filter((v) => v !== null && v > 0);
     const W = 360, labelW = 84, valueW = 58, plotW = W - labelW - valueW;
     const barH = withStudy ? 10 : 14, gap = withStudy ? 9 : 7, groupH = withStudy ? barH * 2 + 2 : barH;
-    const top = 6, H = top + TREES.length * (groupH + gap) + 16;
+    const top = e === null ? 6 : 20, H = top + TREES.length * (groupH + gap) + 16; // a line above the bars for Embree's label
     let scale;
     if (c.log && values.length) {
         const lo = Math.floor(Math.log10(Math.min(...values)) - 0.0001);
@@ -207,10 +209,13 @@ function chartHTML(c, model, ours, embree, study, partial) {
         const label = c.log ? compact(v) : fmt(v, v < 1 ? 2 : 0);
         svg += `<text class="value" x="${labelW + x}" y="${axisY + 11}" text-anchor="${x === 0 ? 'start' : x >= plotW ? 'end' : 'middle'}">${label}</text>`;
     }
+    const peer = embree && embree.builder === 'robust' ? 'Embree, robust' : 'Embree';
     if (e !== null) {
         const x = labelW + scale(e);
+        const right = x > labelW + plotW / 2; // the label on the side with room
         svg += `<line class="embree" x1="${x}" y1="${top - 2}" x2="${x}" y2="${axisY}"/>`;
-        svg += `<text class="embree-label" x="${Math.min(x + 3, W - 40)}" y="${top + 6}">Embree ${fmt(e)}</text>`;
+        svg += `<text class="embree-label" x="${right ? x - 3 : x + 3}" y="${top - 6}"
+                 text-anchor="${right ? 'end' : 'start'}">${peer} ${fmt(e)}</text>`;
     }
     const label = `${c.title} of the eight trees of ${model}${c.unit ? ', ' + c.unit : ''}, ${c.better} is better` +
         (withStudy ? `, with the study's table ${c.study} beside` : '');
@@ -219,6 +224,6 @@ function chartHTML(c, model, ours, embree, study, partial) {
         <svg viewBox="0 0 ${W} ${H}" role="img" aria-label="${esc(label)}">${svg}</svg>
         <figcaption class="key"><span><i class="swatch" style="background:var(--ours)"></i>ours (arbord)</span>
           ${withStudy ? `<span><i class="swatch" style="background:var(--study)"></i>study, table ${c.study}</span>` : ''}
-          ${e !== null ? '<span><i class="swatch" style="background:var(--embree)"></i>Embree</span>' : ''}</figcaption>
+          ${e !== null ? `<span><i class="swatch" style="background:var(--embree)"></i>${peer}</span>` : ''}</figcaption>
       </figure>`;
 }
