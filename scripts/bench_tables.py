@@ -84,14 +84,17 @@ def rayset_table(rows, threads):
            f" | primary hits | primary tsum |",
            "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for m in models:
-        peer = find(rows, m, "embree", "default")
-        for accel, builder in (("bvh", "sah"), ("kd", "sah"), ("embree", "default")):
+        # Embree's row, whichever mode it ran in (arbord bench --embree-robust names it "robust")
+        peer = next((r for r in rows if model_name(r) == m and r["accel"] == "embree"), None)
+        for accel, builder in (("bvh", "sah"), ("kd", "sah"), ("embree", peer["builder"] if peer else None)):
             r = find(rows, m, accel, builder)
             if r is None or r["threads"] != threads:
                 continue
             tracer = f"{accel} {builder}"
             if accel == "embree":
-                tracer = f"Embree (at most {r['kernel']})" if r.get("kernel") else "Embree"
+                notes = [n for n in ("robust" if builder == "robust" else None,
+                                     f"at most {r['kernel']}" if r.get("kernel") else None) if n]
+                tracer = f"Embree ({', '.join(notes)})" if notes else "Embree"
             build_ratio = (r["build_ms"] / peer["build_ms"] if peer and accel != "embree" and peer["build_ms"]
                            else None)
             out.append(f"| {m} | {r['triangles']:,} | {tracer} | {fmt(r['build_ms'])} | {fmt(r['primary_mrays'])}"

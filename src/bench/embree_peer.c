@@ -122,7 +122,7 @@ uint64_t arbor_embree_bvh_bytes(const arbor_embree_peer *p)
 
 const char *arbor_embree_mode(const arbor_embree_peer *p)
 {
-    return p != NULL && (rtcGetSceneFlags(p->scene) & RTC_SCENE_FLAG_ROBUST) ? "robust" : "default";
+    return (rtcGetSceneFlags(p->scene) & RTC_SCENE_FLAG_ROBUST) ? "robust" : "default";
 }
 
 void arbor_embree_kernel(const void *peer, const arbor_ray *rays, size_t n, bool any_hit, arbor_tally *t)

@@ -226,10 +226,10 @@ test('the compare view shows a progress bar and then eight bars per chart', T, a
     });
 });
 
-// "Beside: Embree, robust mode" sends the job's embree as "robust"; the ray
-// charts then carry Embree's line, named for its mode, at the job's own
-// figure; a daemon without Embree says how to get it instead.
-test('the compare view draws robust Embree beside the trees', T, async () => {
+// "Beside" sends the job's embree (true, or "robust" for Embree's robust
+// mode); the ray charts then carry Embree's line, named for its mode, at the
+// job's own figure; a daemon without Embree says how to get it instead.
+test('the compare view draws Embree beside the trees, at its default and in its robust mode', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
         const bodies = [], jobs = [];
         page.on('response', async (r) => {
@@ -240,32 +240,36 @@ test('the compare view draws robust Embree beside the trees', T, async () => {
         await page.goto(`${d.base}/?model=sphere&tab=compare`);
         await page.waitForSelector('#compare-section:not([hidden])');
         await page.waitForFunction(() => document.getElementById('model').value === 'sphere');
-        await page.selectOption('#cmp-peer', 'robust');
-        await page.click('#cmp-start');
-        await page.waitForFunction(() => /^done/.test(document.getElementById('cmp-progress-text').textContent) ||
-            !document.getElementById('cmp-error').hidden, null, { timeout: 170000 });
-        assert.equal(bodies.length, 1);
-        assert.equal(bodies[0].embree, 'robust');
-        const err = await page.$eval('#cmp-error', (e) => (e.hidden ? '' : e.textContent));
-        if (err) {
-            assert.match(err, /built without Embree; run `make bench-embree`/);
-            return;
-        }
-        const job = await fetch(`${d.base}/api/jobs/${jobs[0]}`).then((r) => r.json());
-        const peer = job.rows.find((r) => r.accel === 'embree');
-        assert.equal(peer.builder, 'robust');
-        const charts = await page.$$eval('figure.chart', (fs) => fs.map((f) => ({
-            metric: f.dataset.metric,
-            line: f.querySelectorAll('line.embree').length,
-            label: f.querySelector('text.embree-label')?.textContent || '',
-        })));
-        await screenshot(page, 'compare-robust-embree');
-        for (const c of charts) {
-            const rays = /^(primary|diffuse|shadow)_mrays$/.test(c.metric);
-            assert.equal(c.line, rays ? 1 : 0, `${c.metric}: Embree lines`);
-            if (rays) {
-                assert.ok(/^Embree, robust /.test(c.label), `${c.metric}: label ${c.label}`);
-                const shown = Number(c.label.replace(/^Embree, robust /, '').replace(/,/g, ''));
+        for (const [choice, sent, name] of [['embree', true, 'Embree'], ['robust', 'robust', 'Embree, robust']]) {
+            const k = bodies.length;
+            await page.selectOption('#cmp-peer', choice);
+            await page.click('#cmp-start');
+            await page.waitForFunction(() => !/^done/.test(document.getElementById('cmp-progress-text').textContent));
+            await page.waitForFunction(() => /^done/.test(document.getElementById('cmp-progress-text').textContent) ||
+                !document.getElementById('cmp-error').hidden, null, { timeout: 170000 });
+            assert.equal(bodies.length, k + 1);
+            assert.equal(bodies[k].embree, sent);
+            const err = await page.$eval('#cmp-error', (e) => (e.hidden ? '' : e.textContent));
+            if (err) {
+                assert.match(err, /built without Embree; run `make bench-embree`/);
+                return;
+            }
+            const job = await fetch(`${d.base}/api/jobs/${jobs[k]}`).then((r) => r.json());
+            const peer = job.rows.find((r) => r.accel === 'embree');
+            assert.equal(peer.builder, sent === 'robust' ? 'robust' : 'default');
+            const charts = await page.$$eval('figure.chart', (fs) => fs.map((f) => ({
+                metric: f.dataset.metric,
+                line: f.querySelectorAll('line.embree').length,
+                label: f.querySelector('text.embree-label')?.textContent || '',
+            })));
+            await screenshot(page, `compare-beside-${choice}`);
+            for (const c of charts) {
+                const rays = /^(primary|diffuse|shadow)_mrays$/.test(c.metric);
+                assert.equal(c.line, rays ? 1 : 0, `${c.metric}: Embree lines`);
+                if (!rays) continue;
+                const m = c.label.match(/^(.*) ([0-9.,]+)$/);
+                assert.ok(m && m[1] === name, `${c.metric}: label ${c.label}`);
+                const shown = Number(m[2].replace(/,/g, ''));
                 assert.ok(Math.abs(shown - peer[c.metric]) <= Math.max(0.006, 0.01 * peer[c.metric]),
                     `${c.metric}: ${shown} shown, ${peer[c.metric]} in the job`);
             }

@@ -141,6 +141,8 @@ static void test_every_tree_gets_its_row_and_the_same_hits_as_brute_force(void)
  * over Embree's row's, whose passes were all made beside it. That the
  * passes alternate is not visible in the rows; with two tree rows this
  * checks only that each row's ratios were filled from passes of its own.
+ * The run of two trees puts Embree in its robust mode (opts.embree_robust),
+ * which its row's builder names as Embree reports it (arbor_embree_mode).
  * Skipped where arbord is built without Embree (make bench-embree). */
 static void test_embree_row_and_ratios_to_the_passes_beside_each_tree(void)
 {
@@ -152,6 +154,7 @@ static void test_embree_row_and_ratios_to_the_passes_beside_each_tree(void)
         o.runs = 3;
         o.threads = 2;
         o.embree = true;
+        o.embree_robust = trees == 2;
         o.kinds[ARBOR_ACCEL_KD] = false;
         for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
             o.builders[b] = b == ARBOR_BUILD_SAH || (trees == 2 && b == ARBOR_BUILD_MEDIAN);
@@ -161,7 +164,7 @@ static void test_embree_row_and_ratios_to_the_passes_beside_each_tree(void)
         TEST_ASSERT_TRUE_MESSAGE(arbor_bench_mesh("cornell4", &mesh, &o, rows, &e), e.msg);
         const arbor_bench_row *peer = &rows[trees];
         TEST_ASSERT_EQUAL_STRING("embree", peer->accel);
-        TEST_ASSERT_EQUAL_STRING("default", peer->builder);
+        TEST_ASSERT_EQUAL_STRING(o.embree_robust ? "robust" : "default", peer->builder);
         TEST_ASSERT_TRUE(peer->primary_hits > 0);
         TEST_ASSERT_TRUE(peer->build_ms > 0.0 && peer->bytes_per_tri > 0.0 && isnan(peer->render_ms));
         for (int s = 0; s < ARBOR_SET_COUNT; s++) {
@@ -174,32 +177,6 @@ static void test_embree_row_and_ratios_to_the_passes_beside_each_tree(void)
                 TEST_ASSERT_EQUAL_DOUBLE(rows[0].mrays[s] / peer->mrays[s], rows[0].ratio[s]);
         }
     }
-}
-
-/* opts.embree_robust puts Embree's scene in its robust mode, as Embree
- * itself reports (the row's builder, arbor_embree_mode); that Embree traces
- * the same primary hits as the tree, and the ratios are to it. */
-static void test_embree_robust_row(void)
-{
-    if (!arbor_embree_available())
-        TEST_IGNORE_MESSAGE("built without Embree");
-    arbor_bench_opts o;
-    arbor_bench_opts_init(&o);
-    o.runs = 1;
-    o.threads = 1;
-    o.embree = o.embree_robust = true;
-    o.kinds[ARBOR_ACCEL_KD] = false;
-    for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
-        o.builders[b] = b == ARBOR_BUILD_SAH;
-    arbor_bench_row rows[2];
-    arbor_err e;
-    TEST_ASSERT_TRUE_MESSAGE(arbor_bench_mesh("cornell4", &mesh, &o, rows, &e), e.msg);
-    TEST_ASSERT_EQUAL_STRING("embree", rows[1].accel);
-    TEST_ASSERT_EQUAL_STRING("robust", rows[1].builder);
-    TEST_ASSERT_TRUE(rows[1].primary_hits > 0);
-    TEST_ASSERT_TRUE(arbor_bench_same_hits(&rows[0], &rows[1]));
-    for (int s = 0; s < ARBOR_SET_COUNT; s++)
-        TEST_ASSERT_EQUAL_DOUBLE(rows[0].mrays[s] / rows[1].mrays[s], rows[0].ratio[s]);
 }
 
 /* At scale 1024 and 1/1024 every tree traces the same primary hits, at
@@ -425,7 +402,6 @@ int main(void)
     UNITY_BEGIN();
     RUN_TEST(test_every_tree_gets_its_row_and_the_same_hits_as_brute_force);
     RUN_TEST(test_embree_row_and_ratios_to_the_passes_beside_each_tree);
-    RUN_TEST(test_embree_robust_row);
     RUN_TEST(test_a_scaled_mesh_gives_the_same_hits_at_scaled_distances);
     RUN_TEST(test_a_cancel_flag_set_before_stops_before_any_row);
     RUN_TEST(test_a_cancel_flag_set_during_the_run_stops_it_between_measurements);

@@ -76,7 +76,7 @@ export class Compare {
             this.fail(e.words || String(e));
             return;
         }
-        this.job = { id: j.id, model, start: performance.now() };
+        this.job = { id: j.id, model, start: performance.now(), peer: body.embree !== false };
         $('cmp-cancel').disabled = false;
         this.poll();
     }
@@ -98,7 +98,7 @@ export class Compare {
         if (total > 0) { bar.max = total; bar.value = done; } else bar.removeAttribute('value');
         const secs = ((j.elapsed_ms ?? performance.now() - job.start) / 1000).toFixed(1);
         $('cmp-progress-text').textContent = `${j.state}: ${done} of ${total || '?'} steps, ${secs} s`;
-        if (j.rows && j.rows.length) this.draw(job.model, j.rows, true);
+        if (j.rows && j.rows.length) this.draw(job.model, j.rows, true, job.peer);
         if (j.state === 'done') {
             this.results.set(job.model, j.rows || []);
             this.finish();
@@ -135,8 +135,9 @@ export class Compare {
         this.setError(text);
     }
 
-    /** Draws the eight charts for a model's bench rows (partial while running). */
-    draw(model, rows, partial = false) {
+    /** Draws the eight charts for a model's bench rows (partial while running; peer: the job
+     *  asked for Embree, whose row comes last, so its charts keep room for it from the start). */
+    draw(model, rows, partial = false, peer = false) {
         const el = $('charts');
         if (!rows) {
             el.innerHTML = '';
@@ -145,7 +146,7 @@ export class Compare {
         const ours = (a, b) => rows.find((r) => r.accel === a && r.builder === b) || null;
         const embree = rows.find((r) => r.accel === 'embree') || null;
         const study = hasStudy(model);
-        el.innerHTML = CHARTS.map((c) => chartHTML(c, model, ours, embree, study, partial)).join('') +
+        el.innerHTML = CHARTS.map((c) => chartHTML(c, model, ours, embree, study, partial, peer)).join('') +
             (study ? `<p class="muted small chart-note">Study figures: ${esc(STUDY_SOURCE)}; measured on another machine
               and ray tracer (no BVH-SAH there), shown for shape, not as a race. Times on a log scale.</p>` : '');
     }
@@ -158,7 +159,7 @@ function compact(v) {
     return String(v);
 }
 
-function chartHTML(c, model, ours, embree, study, partial) {
+function chartHTML(c, model, ours, embree, study, partial, peerAsked) {
     const withStudy = study && c.study;
     const rows = TREES.map(([a, b]) => {
         const r = ours(a, b);
@@ -170,7 +171,8 @@ function chartHTML(c, model, ours, embree, study, partial) {
     const values = rows.flatMap((r) => [r.v, r.s]).concat(e === null ? [] : [e]).filter((v) => v !== null && v > 0);
     const W = 360, labelW = 84, valueW = 58, plotW = W - labelW - valueW;
     const barH = withStudy ? 10 : 14, gap = withStudy ? 9 : 7, groupH = withStudy ? barH * 2 + 2 : barH;
-    const top = e === null ? 6 : 20, H = top + TREES.length * (groupH + gap) + 16; // a line above the bars for Embree's label
+    // a line above the bars for Embree's label
+    const top = c.embree && (e !== null || peerAsked) ? 20 : 6, H = top + TREES.length * (groupH + gap) + 16;
     let scale;
     if (c.log && values.length) {
         const lo = Math.floor(Math.log10(Math.min(...values)) - 0.0001);
