@@ -86,10 +86,10 @@ def rayset_table(rows, threads):
     for m in models:
         # Embree's row, whichever mode it ran in (arbord bench --embree-robust names it "robust")
         peer = next((r for r in rows if model_name(r) == m and r["accel"] == "embree"), None)
-        for accel, builder in (("bvh", "sah"), ("kd", "sah"), ("embree", peer["builder"] if peer else None)):
-            r = find(rows, m, accel, builder)
+        for r in (find(rows, m, "bvh", "sah"), find(rows, m, "kd", "sah"), peer):
             if r is None or r["threads"] != threads:
                 continue
+            accel, builder = r["accel"], r["builder"]
             tracer = f"{accel} {builder}"
             if accel == "embree":
                 notes = [n for n in ("robust" if builder == "robust" else None,

@@ -123,14 +123,13 @@ EOF
 embree_robust_row() {
     "$arbord" bench --model "$model" --accel bvh --builder sah --runs 1 --embree-robust --format json \
         > "$tmp/robust.json" 2>"$tmp/robust.err" || { grep -q "built without Embree" "$tmp/robust.err"; return; }
-    python3 - "$tmp/robust.json" <<'EOF'
+    python3 - "$tmp/robust.json" <<'EOF' || return 1
 import json, sys
 rows = [json.loads(l) for l in open(sys.argv[1])]
 assert [(r["accel"], r["builder"]) for r in rows] == [("bvh", "sah"), ("embree", "robust")], rows
 assert rows[1]["primary_hits"] == rows[0]["primary_hits"] > 0, rows
 EOF
-    [ $? -eq 0 ] &&
-        "$arbord" stats --model "$model" --accel kd --builder sah --json > "$tmp/kd.json" &&
+    "$arbord" stats --model "$model" --accel kd --builder sah --json > "$tmp/kd.json" &&
         python3 "$root/scripts/bench_tables.py" "$tmp/robust.json" "$tmp/robust.json" "$tmp/kd.json" > "$tmp/robust.md" &&
         grep -q "| cornell | 36 | Embree (robust) |" "$tmp/robust.md" &&
         ! grep -q "| cornell | 36 | bvh sah | [^|]* | [^|]* | [^|]* | [^|]* | [^|]* | [^|]* | [^|]* | - |" "$tmp/robust.md"
