@@ -83,13 +83,16 @@ arbor_store *arbor_store_create(const arbor_store_config *c, arbor_err *e);
  * references. Every other reference must have been released. */
 void arbor_store_destroy(arbor_store *s);
 
-/* True for names of 1..64 characters from [A-Za-z0-9._-], not "." or "..". */
+/* The rule a model name follows, in words for error messages. */
+#define ARBOR_MODEL_NAME_RULE "1..64 characters of A-Z a-z 0-9 . _ -, the first not '.'"
+/* True for names of 1..64 characters from [A-Za-z0-9._-] whose first is not
+ * '.': a name is a file name in the models folder, where a leading dot
+ * would hide it from the folder's scan (and "." and ".." are not files). */
 bool arbor_model_name_valid(const char *name);
 
 /* How a model is added. */
 enum {
-    ARBOR_ADD_REPLACE = 1,   /* an existing model of that name is replaced, not refused */
-    ARBOR_ADD_UPLOADED = 2   /* its file was written by the daemon (an upload), so deleting it goes */
+    ARBOR_ADD_REPLACE = 1    /* an existing model of that name is replaced, not refused */
 };
 
 /* Adds a model made of *mesh (moved into the store on success: *mesh is left
@@ -115,7 +118,6 @@ void arbor_model_release(arbor_model *m);
 const char *arbor_model_name(const arbor_model *m);
 const char *arbor_model_file(const arbor_model *m);
 uint64_t arbor_model_version(const arbor_model *m);
-bool arbor_model_uploaded(const arbor_model *m);
 /* The identity of the file the model was read from (arbor_file_stamp, taken
  * before reading it), so that a daemon sharing its models folder with others
  * sees when the file was replaced; 0 (the default) when not known. */

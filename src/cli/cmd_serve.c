@@ -333,7 +333,8 @@ static void load_one(arbor_server *server, arbor_store *store, const char *dir, 
 {
     char name[ARBOR_MODEL_NAME_MAX + 1], path[PATH_MAX];
     if (!model_file(file, name, sizeof name) || !arbor_model_name_valid(name)) {
-        fprintf(stderr, "arbord: skipping %s/%s: its name makes no model name (1..64 characters)\n", dir, file);
+        fprintf(stderr, "arbord: skipping %s/%s: its name makes no model name (" ARBOR_MODEL_NAME_RULE ")\n", dir,
+                file);
         return;
     }
     snprintf(path, sizeof path, "%s/%s", dir, file);
@@ -452,6 +453,16 @@ int cmd_serve(int argc, char **argv)
             return 2;
         }
         a.server.web_dir = web_default;
+    }
+    /* a folder that cannot be read is a bad flag, not a daemon with no
+     * models: the first is where uploads go, and in a cluster, the models */
+    for (int i = 0; i < a.nmodel_dirs; i++) {
+        DIR *d = opendir(a.model_dirs[i]);
+        if (d == NULL) {
+            fprintf(stderr, "arbord serve: cannot read --models %s: %s\n", a.model_dirs[i], strerror(errno));
+            return 2;
+        }
+        closedir(d);
     }
     a.server.upload_dir = a.model_dirs[0];
     char *token = NULL;

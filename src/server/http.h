@@ -122,6 +122,12 @@ void http_req_release(http_req *r);
 
 /* ---- helpers (server.c) ---- */
 const char *http_arg(http_req *r, const char *key);
+/* Whether every query parameter is one of `known` ("a, b, c"); replies 400
+ * naming the first that is not. */
+bool http_args_known(http_req *r, const char *known);
+/* A flag parameter: absent is false, "1" and "true" true, "0" and "false"
+ * false; anything else replies 400 and returns false with *ok false. */
+bool http_arg_flag(http_req *r, const char *key, bool *ok);
 bool http_may_write(http_req *r);   /* replies 401/403 when not */
 bool http_method_is(http_req *r, const char *m);
 void http_method_not_allowed(http_req *r, const char *allow);

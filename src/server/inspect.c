@@ -77,11 +77,12 @@ static bool on_node(void *user, const arbor_node_info *n)
                                : q->all_levels ? n->depth <= q->depth : n->depth == q->depth;
     if (!want)
         return true;
-    if (w->count == BOXES_MAX) {
+    /* past the cap the walk goes on only to count: the viewer says how many
+     * of how many it draws */
+    if (w->count < BOXES_MAX)
+        json_push(w->boxes, node_json(n, false));
+    else
         w->truncated = true;
-        return false;
-    }
-    json_push(w->boxes, node_json(n, false));
     w->count++;
     return true;
 }
@@ -195,12 +196,6 @@ static void with_tree(inspect_req *q, arbor_model *m, arbor_accel_kind k, arbor_
     http_resume(r);
 }
 
-static bool flag_arg(http_req *r, const char *key)
-{
-    const char *v = http_arg(r, key);
-    return v != NULL && (strcmp(v, "1") == 0 || strcmp(v, "true") == 0);
-}
-
 void route_boxes(http_req *r, arbor_model *m, const char *accel, const char *builder)
 {
     if (!http_method_is(r, "GET") && !http_method_is(r, "HEAD")) {
@@ -209,7 +204,12 @@ void route_boxes(http_req *r, arbor_model *m, const char *accel, const char *bui
     }
     arbor_accel_kind k;
     arbor_builder b;
-    if (!parse_tree_names(r, accel, builder, &k, &b))
+    if (!parse_tree_names(r, accel, builder, &k, &b) || !http_args_known(r, "depth, leaves, all"))
+        return;
+    bool ok = true;
+    bool leaves_only = http_arg_flag(r, "leaves", &ok);
+    bool all_levels = ok && http_arg_flag(r, "all", &ok);
+    if (!ok)
         return;
     const char *d = http_arg(r, "depth");
     char *end = NULL;
@@ -227,8 +227,8 @@ void route_boxes(http_req *r, arbor_model *m, const char *accel, const char *bui
     q->http = r;
     q->kind = INSPECT_BOXES;
     q->depth = (uint32_t)depth;
-    q->leaves_only = flag_arg(r, "leaves");
-    q->all_levels = flag_arg(r, "all");
+    q->leaves_only = leaves_only;
+    q->all_levels = all_levels;
     with_tree(q, m, k, b);
 }
 

@@ -16,6 +16,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <zlib.h>
 
@@ -109,6 +110,12 @@ static bool part_start(upload_parts *u, const char *name)
     u->out = NULL;
     if (u->nfiles == UPLOAD_FILES_MAX) {
         snprintf(u->error, sizeof u->error, "at most %d files in one upload", UPLOAD_FILES_MAX);
+        return false;
+    }
+    if (u->model[0] != '\0' && is_model_name(name)) {
+        /* it would become a model of the folder, past the checks a model's name gets */
+        snprintf(u->error, sizeof u->error, "an upload holds one model file: '%s' is a second, after '%s'", name,
+                 u->model);
         return false;
     }
     char path[256];
@@ -309,32 +316,179 @@ static const char *model_ext(const char *file)
     return ".obj";
 }
 
-/* Saves every part of the upload into dir: the model as NAME.EXT (the
- * other extensions of NAME removed, so the folder holds one file of that
- * name), the material libraries under their own names. */
-static bool save_upload(const upload_parts *u, const char *dir, const char *name, char *file, size_t cap,
-                        char *err, size_t errcap)
+/* ---- what an upload owns in the folder ----
+ *
+ * An upload of NAME records the files it wrote into the folder in
+ * ".NAME.upload" (a dot file: the folder's scan skips it, sync.c), one file
+ * name a line: the model file and the material libraries that came with it.
+ * DELETE removes the files the record names and the record, through any
+ * daemon sharing the folder, so a file the operator put there is never
+ * removed. An upload writes no file of the folder that its name's record
+ * does not hold: a material library already there with other bytes is a
+ * conflict (another model's, or the operator's), and one with the same
+ * bytes is left as it is and not taken over. The record is written before
+ * the files it names, so a DELETE that comes between finds them all. */
+
+#define OWNED_MAX (UPLOAD_FILES_MAX + 1)
+
+typedef struct {
+    char file[OWNED_MAX][NAME_MAX + 1];
+    uint32_t n;
+} owned_files;
+
+static void record_path(const char *dir, const char *name, char *path, size_t cap)
 {
-    DIR *d = opendir(u->dir);
-    bool ok = d != NULL;
-    struct dirent *ent;
-    char src[PATH_MAX], final[PART_NAME_MAX + 16];
+    snprintf(path, cap, "%s/.%s.upload", dir, name);
+}
+
+static bool owned_has(const owned_files *o, const char *file)
+{
+    for (uint32_t i = 0; i < o->n; i++)
+        if (strcmp(o->file[i], file) == 0)
+            return true;
+    return false;
+}
+
+/* The record of name's upload, empty when there is none; lines that are no
+ * plain file name of the folder are ignored (the record is ours, but the
+ * folder is shared). */
+static void owned_read(const char *dir, const char *name, owned_files *o)
+{
+    char path[PATH_MAX], line[NAME_MAX + 2];
+    record_path(dir, name, path, sizeof path);
+    o->n = 0;
+    FILE *f = fopen(path, "r");
+    while (f != NULL && o->n < OWNED_MAX && fgets(line, sizeof line, f) != NULL) {
+        size_t len = strcspn(line, "\n");
+        if (len > 0 && len <= NAME_MAX && line[0] != '.' && memchr(line, '/', len) == NULL) {
+            memcpy(o->file[o->n], line, len);
+            o->file[o->n++][len] = '\0';
+        }
+    }
+    if (f != NULL)
+        fclose(f);
+}
+
+/* Removes from dir the files of o that keep (may be NULL) does not have. */
+static void owned_unlink(const char *dir, const owned_files *o, const owned_files *keep)
+{
+    char path[PATH_MAX];
+    for (uint32_t i = 0; i < o->n; i++)
+        if (keep == NULL || !owned_has(keep, o->file[i])) {
+            snprintf(path, sizeof path, "%s/%s", dir, o->file[i]);
+            unlink(path);
+        }
+}
+
+/* Removes the files of name's upload and its record: a model the operator
+ * put in the folder has none, and keeps its file. */
+static void owned_remove(const char *dir, const char *name)
+{
+    owned_files o;
+    char path[PATH_MAX];
+    owned_read(dir, name, &o);
+    owned_unlink(dir, &o, NULL);
+    record_path(dir, name, path, sizeof path);
+    unlink(path);
+}
+
+/* Writes o as name's upload record in dir, through stage (a folder of
+ * ours) and save_file. */
+static bool owned_write(const char *dir, const char *name, const owned_files *o, const char *stage, char *err,
+                        size_t errcap)
+{
+    char tmp[PATH_MAX], record[PART_NAME_MAX + 16];
+    snprintf(tmp, sizeof tmp, "%s/.upload", stage);
+    snprintf(record, sizeof record, ".%s.upload", name);
+    FILE *f = fopen(tmp, "w");
+    bool ok = f != NULL;
+    for (uint32_t i = 0; ok && i < o->n; i++)
+        ok = fprintf(f, "%s\n", o->file[i]) > 0;
+    ok = (f != NULL && fclose(f) == 0) && ok;
+    if (!ok) {
+        snprintf(err, errcap, "cannot store the upload's record");
+        return false;
+    }
+    return save_file(tmp, dir, record, err, errcap);
+}
+
+/* Whether files a and b hold the same bytes. */
+static bool same_bytes(const char *a, const char *b)
+{
+    FILE *fa = fopen(a, "rb"), *fb = fopen(b, "rb");
+    bool same = fa != NULL && fb != NULL;
+    char ba[8192], bb[8192];
+    while (same) {
+        size_t na = fread(ba, 1, sizeof ba, fa), nb = fread(bb, 1, sizeof bb, fb);
+        same = na == nb && memcmp(ba, bb, na) == 0;
+        if (na < sizeof ba)
+            break;
+    }
+    if (fa != NULL)
+        fclose(fa);
+    if (fb != NULL)
+        fclose(fb);
+    return same;
+}
+
+/* Saves the upload into dir: the model as NAME.EXT (the other extensions of
+ * NAME removed, so the folder holds one file of that name), the material
+ * libraries under their own names, and the record of what it wrote (the
+ * files an earlier upload of NAME wrote and this one does not are
+ * removed). *conflict is set, and nothing written, when a material library
+ * would overwrite a file that is not NAME's. */
+static bool save_upload(const upload_parts *u, const char *dir, const char *name, char *file, size_t cap,
+                        bool *conflict, char *err, size_t errcap)
+{
+    char src[PATH_MAX], dst[PATH_MAX], final[PART_NAME_MAX + 16];
     const char *ext = model_ext(u->model);
     snprintf(final, sizeof final, "%s%s", name, ext);
-    while (ok && (ent = readdir(d)) != NULL) {
-        if (ent->d_name[0] == '.')
+    owned_files before, now = {.n = 0};
+    owned_read(dir, name, &before);
+    snprintf(now.file[now.n++], sizeof now.file[0], "%s", final);
+    /* which parts to write, before writing any */
+    DIR *d = opendir(u->dir);
+    struct dirent *ent;
+    *conflict = false;
+    while (d != NULL && !*conflict && (ent = readdir(d)) != NULL) {
+        if (ent->d_name[0] == '.' || strcmp(ent->d_name, u->model) == 0)
             continue;
-        bool is_model = strcmp(ent->d_name, u->model) == 0;
         snprintf(src, sizeof src, "%s/%s", u->dir, ent->d_name);
-        ok = save_file(src, dir, is_model ? final : ent->d_name, err, errcap);
+        snprintf(dst, sizeof dst, "%s/%s", dir, ent->d_name);
+        struct stat st;
+        bool taken = lstat(dst, &st) == 0 && !owned_has(&before, ent->d_name);
+        if (taken && !same_bytes(src, dst)) {
+            *conflict = true;
+            snprintf(err, errcap,
+                     "'%s' is in the models folder already, with other contents, and no upload of '%s' wrote "
+                     "it: give the file another name (and the .obj's mtllib line) and upload again",
+                     ent->d_name, name);
+        } else if (!taken && now.n < OWNED_MAX) {
+            snprintf(now.file[now.n++], sizeof now.file[0], "%s", ent->d_name);
+        }
     }
     if (d != NULL)
         closedir(d);
-    for (int i = 0; ok && i < 4; i++)
-        if (strcmp(model_exts[i], ext) != 0) {
-            snprintf(src, sizeof src, "%s/%s%s", dir, name, model_exts[i]);
-            unlink(src);
-        }
+    if (d == NULL || *conflict) {
+        if (d == NULL)
+            snprintf(err, errcap, "cannot read the stored upload");
+        return false;
+    }
+    bool ok = owned_write(dir, name, &now, u->dir, err, errcap);
+    /* the material libraries, then the model: a daemon that loads the model
+     * finds its materials */
+    for (uint32_t i = now.n; ok && i-- > 0;) {
+        snprintf(src, sizeof src, "%s/%s", u->dir, i == 0 ? u->model : now.file[i]);
+        ok = save_file(src, dir, now.file[i], err, errcap);
+    }
+    if (ok) {
+        owned_unlink(dir, &before, &now);
+        for (int i = 0; i < 4; i++)
+            if (strcmp(model_exts[i], ext) != 0) {
+                snprintf(src, sizeof src, "%s/%s%s", dir, name, model_exts[i]);
+                unlink(src);
+            }
+    }
     snprintf(file, cap, "%s/%s", dir, final);
     return ok;
 }
@@ -363,15 +517,22 @@ static void upload_run(void *ctx, uint32_t task)
     arbor_err_clear(&err);
     char file[PATH_MAX], why[PATH_MAX + 128];
     uint64_t version = 0, stamp = 0;
-    unsigned flags = ARBOR_ADD_UPLOADED | (j->replace ? ARBOR_ADD_REPLACE : 0);
-    if (!arbor_load_model_capped(j->path, s->config.max_upload, &mesh, &err)) {
+    unsigned flags = j->replace ? ARBOR_ADD_REPLACE : 0;
+    bool conflict = false;
+    bool loaded = arbor_load_model_capped(j->path, s->config.max_upload, &mesh, &err);
+    for (uint32_t i = 0; i < mesh.nwarnings; i++)
+        strip_dir(mesh.warnings[i], r->parts->dir);
+    if (!loaded) {
         strip_dir(err.msg, r->parts->dir);
         if (err.status == ARBOR_ERR_NOMEM)
             http_reply_err(r, &err);
         else
             http_reply_error(r, 400, "bad_request", "%s", err.msg);
-    } else if (!save_upload(r->parts, s->config.upload_dir, j->name, file, sizeof file, why, sizeof why)) {
-        http_reply_error(r, 507, "insufficient_storage", "%s", why);
+    } else if (!save_upload(r->parts, s->config.upload_dir, j->name, file, sizeof file, &conflict, why,
+                            sizeof why)) {
+        if (!conflict && !j->replaced)
+            owned_remove(s->config.upload_dir, j->name); /* what was written of it */
+        http_reply_error(r, conflict ? 409 : 507, conflict ? "conflict" : "insufficient_storage", "%s", why);
     } else if ((stamp = arbor_file_stamp(file)) == 0) { /* taken at once: what sync.c compares */
         /* A DELETE of the name came between the rename and now: it is the
          * later change, and this upload is gone with it. */
@@ -380,7 +541,7 @@ static void upload_run(void *ctx, uint32_t task)
         /* A new model refused (no room) leaves no file: the daemons sharing
          * the folder would load it, and a restart too. */
         if (!j->replaced)
-            unlink(file);
+            owned_remove(s->config.upload_dir, j->name);
         http_reply_err(r, &err);
     } else {
         arbor_model *m = arbor_store_acquire_model(s->store, j->name);
@@ -472,21 +633,18 @@ static void delete_model(http_req *r, const char *name)
     arbor_model *m = sync_model(r, name);
     if (m == NULL)
         return;
-    char file[PATH_MAX] = "";
-    if (arbor_model_uploaded(m))
-        snprintf(file, sizeof file, "%s", arbor_model_file(m));
     arbor_model_release(m);
     arbor_err err;
     if (!arbor_store_remove_model(r->srv->store, name, &err)) {
         http_reply_err(r, &err);
         return;
     }
-    /* An uploaded model's file goes with it, or the next start would load it
-     * again, and so do the other daemons sharing the folder (sync.c); a model
-     * the operator put in the folder keeps its file (and is loaded again by
-     * the next request for it). */
-    if (file[0] != '\0')
-        unlink(file);
+    /* An uploaded model's files go with it, or the next start would load it
+     * again, and so would the other daemons sharing the folder (sync.c); a
+     * model the operator put in the folder keeps its file (and is loaded
+     * again by the next request for it). */
+    if (r->srv->config.upload_dir != NULL)
+        owned_remove(r->srv->config.upload_dir, name);
     cJSON *o = cJSON_CreateObject();
     cJSON_AddStringToObject(o, "deleted", name);
     http_reply_json(r, 200, o);
@@ -508,9 +666,11 @@ static void below_model(http_req *r, const char *name, const char *rest)
     if (m == NULL)
         return;
     char accel[16], builder[16];
+    int end = 0; /* where the match ended: sscanf's count ignores the literal after the last field */
     if (r->route == ROUTE_TREES)
         route_tree_build(r, m);
-    else if (sscanf(rest, "/trees/%15[^/]/%15[^/]/boxes", accel, builder) == 2)
+    else if (sscanf(rest, "/trees/%15[^/]/%15[^/]/boxes%n", accel, builder, &end) == 2 && end > 0 &&
+             rest[end] == '\0')
         route_boxes(r, m, accel, builder);
     else
         http_reply_error(r, 404, "not_found", "no such endpoint: %s", r->url);

@@ -61,7 +61,8 @@ static bool read_number(const cJSON *v, const char *name, double lo, double hi, 
         return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a number", name);
     double d = v->valuedouble;
     if (!isfinite(d) || d < lo || d > hi)
-        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a finite number in %g..%g, not %g", name, lo, hi, d);
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a finite number in %.16g..%.16g, not %.16g", name, lo,
+                          hi, d);
     *out = d;
     return true;
 }
@@ -292,7 +293,12 @@ static cJSON *number_list(const char *text)
     const char *p = text;
     while (a != NULL) {
         char *end;
+        /* decimal numbers only, as in a JSON body: strtod would also take
+         * hex (0x40), inf and nan */
+        size_t digits = strspn(p, "+-.0123456789eE");
         double d = strtod(p, &end);
+        if (end > p + digits)
+            end = (char *)p;
         /* errno is not looked at: ERANGE comes with subnormals, which JSON
          * accepts, and with overflow, whose inf the field's own check
          * refuses by name. */

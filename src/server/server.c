@@ -18,6 +18,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/socket.h>
 #include <time.h>
 #include <unistd.h>
@@ -87,6 +88,44 @@ void http_reply_buffer(http_req *r, unsigned status, const char *content_type, v
     reply_response(r, status, resp, len);
 }
 
+/* The length of the well-formed UTF-8 sequence at s (of n bytes), or 0:
+ * RFC 3629's table, so no overlong form, surrogate or code point past
+ * U+10FFFF passes. */
+static size_t utf8_sequence(const unsigned char *s, size_t n)
+{
+    unsigned char c = s[0];
+    if (c < 0x80)
+        return 1;
+    size_t len = c >= 0xC2 && c <= 0xDF ? 2 : c >= 0xE0 && c <= 0xEF ? 3 : c >= 0xF0 && c <= 0xF4 ? 4 : 0;
+    if (len == 0 || len > n)
+        return 0;
+    unsigned char lo = c == 0xE0 ? 0xA0 : c == 0xF0 ? 0x90 : 0x80;
+    unsigned char hi = c == 0xED ? 0x9F : c == 0xF4 ? 0x8F : 0xBF;
+    if (s[1] < lo || s[1] > hi)
+        return 0;
+    for (size_t i = 2; i < len; i++)
+        if (s[i] < 0x80 || s[i] > 0xBF)
+            return 0;
+    return len;
+}
+
+/* Replaces each byte of text that is not part of well-formed UTF-8 by '?'.
+ * Strings from requests and files (a URL's %ff, a material name in Latin-1)
+ * reach JSON bodies byte for byte, and JSON is UTF-8; outside strings JSON
+ * is ASCII, so only strings change. */
+static void utf8_repair(char *text, size_t len)
+{
+    unsigned char *s = (unsigned char *)text;
+    for (size_t i = 0; i < len;) {
+        size_t k = utf8_sequence(s + i, len - i);
+        if (k == 0) {
+            s[i] = '?';
+            k = 1;
+        }
+        i += k;
+    }
+}
+
 void http_reply_json(http_req *r, unsigned status, cJSON *body)
 {
     char *text = body != NULL && !json_oom ? cJSON_PrintUnformatted(body) : NULL;
@@ -101,6 +140,7 @@ void http_reply_json(http_req *r, unsigned status, cJSON *body)
         return;
     }
     size_t len = strlen(text);
+    utf8_repair(text, len);
     /* A newline ends the body, so curl's output ends a line. */
     char *line = realloc(text, len + 2);
     if (line != NULL) {
@@ -187,6 +227,45 @@ const char *http_arg(http_req *r, const char *key)
     return MHD_lookup_connection_value(r->conn, MHD_GET_ARGUMENT_KIND, key);
 }
 
+typedef struct {
+    const char *known;
+    const char *unknown; /* the first key not in known */
+} args_check;
+
+static enum MHD_Result arg_known(void *cls, enum MHD_ValueKind kind, const char *key, const char *value)
+{
+    (void)kind;
+    (void)value;
+    args_check *c = cls;
+    size_t n = strlen(key);
+    for (const char *at = c->known; n > 0 && (at = strstr(at, key)) != NULL; at += n)
+        if ((at == c->known || at[-1] == ' ') && (at[n] == ',' || at[n] == '\0'))
+            return MHD_YES;
+    c->unknown = key;
+    return MHD_NO;
+}
+
+bool http_args_known(http_req *r, const char *known)
+{
+    args_check c = {known, NULL};
+    MHD_get_connection_values(r->conn, MHD_GET_ARGUMENT_KIND, arg_known, &c);
+    if (c.unknown != NULL)
+        http_reply_error(r, 400, "bad_request", "unknown query parameter '%s' (%s)", c.unknown, known);
+    return c.unknown == NULL;
+}
+
+bool http_arg_flag(http_req *r, const char *key, bool *ok)
+{
+    const char *v = http_arg(r, key);
+    if (v == NULL || strcmp(v, "0") == 0 || strcmp(v, "false") == 0)
+        return false;
+    if (strcmp(v, "1") == 0 || strcmp(v, "true") == 0)
+        return true;
+    http_reply_error(r, 400, "bad_request", "%s must be 1, true, 0 or false, not '%s'", key, v);
+    *ok = false;
+    return false;
+}
+
 bool http_method_is(http_req *r, const char *m)
 {
     return strcmp(r->method, m) == 0;
@@ -219,7 +298,7 @@ bool http_may_write(http_req *r)
         return false;
     }
     const char *auth = MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_AUTHORIZATION);
-    if (auth != NULL && strncmp(auth, "Bearer ", 7) == 0 && same_secret(auth + 7, s->token))
+    if (auth != NULL && strncasecmp(auth, "Bearer ", 7) == 0 && same_secret(auth + 7, s->token))
         return true;
     http_reply_error(r, 401, "unauthorized", "this request changes state: send Authorization: Bearer <token>");
     http_reply_header(r, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Bearer");
@@ -451,7 +530,7 @@ static void dispatch(http_req *r, const char *path)
         if (!next_segment(&p, name, sizeof name) || !arbor_model_name_valid(name)) {
             if (r->upload)
                 http_reply_error(r, 400, "bad_request",
-                                 "model names are 1..64 characters of A-Z a-z 0-9 . _ -, not '%s'", path + 12);
+                                 "'%s' is no model name: names are " ARBOR_MODEL_NAME_RULE, path + 12);
             else
                 http_reply_error(r, 404, "not_found", "no model named '%s'", path + 12);
             return;

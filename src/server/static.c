@@ -94,7 +94,8 @@ void route_static(http_req *r, const char *path)
     snprintf(etag, sizeof etag, "\"%llx-%llx\"", (unsigned long long)st.st_size,
              (unsigned long long)st.st_mtim.tv_sec * 1000000000ull + (unsigned long long)st.st_mtim.tv_nsec);
     const char *match = MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_IF_NONE_MATCH);
-    if (match != NULL && strstr(match, etag) != NULL) {
+    /* "*" matches any current version of the file (RFC 9110, 13.1.2) */
+    if (match != NULL && (strstr(match, etag) != NULL || strcmp(match, "*") == 0)) {
         close(fd);
         http_reply_buffer(r, 304, content_type(file), NULL, 0);
     } else {

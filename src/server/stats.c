@@ -259,6 +259,8 @@ static void add_ready_trees(arbor_server *s, arbor_model *m, cJSON *trees)
 void route_stats(http_req *r)
 {
     arbor_server *s = r->srv;
+    if (!http_args_known(r, "model, accel, builder"))
+        return;
     const char *model = http_arg(r, "model"), *accel = http_arg(r, "accel"), *builder = http_arg(r, "builder");
     arbor_model *one = NULL;
     if (model != NULL && (one = sync_model(r, model)) == NULL)

@@ -131,10 +131,8 @@ static void load_run(void *ctx, uint32_t task)
     arbor_err_clear(&err);
     uint64_t version = 0;
     size_t cap = s->config.max_upload > ARBOR_LOAD_MAX_BYTES ? (size_t)s->config.max_upload : ARBOR_LOAD_MAX_BYTES;
-    /* It appeared in the shared folder after this daemon read it: an upload
-     * through another daemon, so deleting it removes the file, as there. */
     bool ok = arbor_load_model_capped(l->path, cap, &mesh, &err) &&
-              arbor_store_add_model(s->store, l->name, l->path, &mesh, ARBOR_ADD_REPLACE | ARBOR_ADD_UPLOADED,
+              arbor_store_add_model(s->store, l->name, l->path, &mesh, ARBOR_ADD_REPLACE,
                                     &version, &err);
     arbor_mesh_free(&mesh);
     arbor_model *m = ok ? arbor_store_acquire_model(s->store, l->name) : NULL;

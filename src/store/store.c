@@ -48,7 +48,6 @@ struct arbor_model {
     char *file;
     uint64_t version;
     uint64_t bytes;
-    bool uploaded;        /* its file was written by the daemon */
     atomic_uint_fast64_t stamp; /* the identity of the file it was read from, 0 when not known */
     arbor_mesh mesh;
     /* protected by store->lock */
@@ -122,7 +121,7 @@ uint64_t arbor_mesh_bytes(const arbor_mesh *m)
 bool arbor_model_name_valid(const char *name)
 {
     size_t n = strlen(name);
-    if (n < 1 || n > ARBOR_MODEL_NAME_MAX || strcmp(name, ".") == 0 || strcmp(name, "..") == 0)
+    if (n < 1 || n > ARBOR_MODEL_NAME_MAX || name[0] == '.')
         return false;
     for (size_t i = 0; i < n; i++) {
         char c = name[i];
@@ -192,7 +191,6 @@ const char *arbor_model_name(const arbor_model *m) { return m->name; }
 const char *arbor_model_file(const arbor_model *m) { return m->file; }
 uint64_t arbor_model_version(const arbor_model *m) { return m->version; }
 uint64_t arbor_model_bytes(const arbor_model *m) { return m->bytes; }
-bool arbor_model_uploaded(const arbor_model *m) { return m->uploaded; }
 uint64_t arbor_model_stamp(const arbor_model *m) { return atomic_load(&((arbor_model *)m)->stamp); }
 void arbor_model_set_stamp(arbor_model *m, uint64_t stamp) { atomic_store(&m->stamp, stamp); }
 const arbor_mesh *arbor_model_mesh(const arbor_model *m) { return &m->mesh; }
@@ -390,12 +388,10 @@ bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, a
                            uint64_t *version, arbor_err *e)
 {
     if (!arbor_model_name_valid(name))
-        return arbor_fail(e, ARBOR_ERR_INVALID, "model name '%s' must be 1..64 characters of A-Z a-z 0-9 . _ -",
-                          name);
+        return arbor_fail(e, ARBOR_ERR_INVALID, "model name '%s' must be " ARBOR_MODEL_NAME_RULE, name);
     arbor_model *m = model_new(name, file, mesh, s, e);
     if (m == NULL)
         return false;
-    m->uploaded = (flags & ARBOR_ADD_UPLOADED) != 0;
     dropped d;
     pthread_mutex_lock(&s->lock);
     bool found, ok = dropped_init(s, &d, e) && table_grow(s, e);

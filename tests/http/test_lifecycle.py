@@ -128,6 +128,14 @@ def test_bad_port_99999_exit_2():
 
 
 @test
+def test_models_folder_missing_exit_2():
+    missing = os.path.join(tempfile.mkdtemp(prefix="arbor-http-"), "no-such-folder")
+    _, line = _bad(["--port", "0", "--models", os.path.join(harness.REPO, "models"), "--models", missing],
+                   "a --models folder that is not there")
+    check(missing in line, "the one line does not name the folder: %r" % line)
+
+
+@test
 def test_port_in_use_exit_2():
     s = socket.socket()
     s.bind(("127.0.0.1", 0))

@@ -304,3 +304,83 @@ def test_upload_multipart_over_max_upload_413():
     body, ctype = multipart([("model", "big.obj", "model/obj", obj)])
     expect_error(d.req("POST", "/api/models/bigmp", body=body, headers={"Content-Type": ctype}), 413, "too_large")
     expect_error(d.get("/api/models/bigmp"), 404, "not_found")
+
+
+@test
+def test_delete_keeps_the_operators_files():
+    """DELETE unloads a model the operator put in the folder and keeps its file, however often and whenever
+    it was loaded (at start, or by a request after a DELETE, or copied in while the daemon runs)."""
+    d = Daemon([our("cornell.obj")], ["--threads", "1"], copy=True, name="operator-files daemon")
+    try:
+        cornell = os.path.join(d.models_dir, "cornell.obj")
+        for round_ in range(2):
+            eq(expect_json(d.req("DELETE", "/api/models/cornell")), {"deleted": "cornell"}, "DELETE %d" % round_)
+            check(os.path.exists(cornell), "DELETE number %d removed the operator's cornell.obj" % (round_ + 1))
+            eq(d.model("cornell")["triangles"], 36, "cornell loaded again from its file")
+        with open(os.path.join(d.models_dir, "late.obj"), "wb") as f:
+            f.write(TETRA_OBJ)
+        eq(d.model("late")["triangles"], 4, "a model copied into the folder while the daemon runs")
+        expect_json(d.req("DELETE", "/api/models/late"))
+        check(os.path.exists(os.path.join(d.models_dir, "late.obj")), "DELETE removed the operator's late.obj")
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+def _folder(d):
+    return sorted(os.listdir(d.models_dir))
+
+
+@test
+def test_upload_writes_no_file_it_does_not_own():
+    """An upload's material library may not overwrite a file of the folder that no upload of that name
+    wrote (another model's .mtl, the operator's): 409 and nothing written. The same bytes are left as they
+    are and not taken over; DELETE removes exactly the files the upload wrote."""
+    d = upload_daemon()
+    sphere_mtl = os.path.join(d.models_dir, "sphere.mtl")
+    with open(sphere_mtl, "rb") as f:
+        before = f.read()
+    obj = b"mtllib sphere.mtl\nusemtl evil\n" + TETRA_OBJ
+    body, ctype = multipart([("model", "own.obj", "model/obj", obj),
+                             ("mtl", "sphere.mtl", "text/plain", b"newmtl evil\nKd 1 0 1\n")])
+    folder = _folder(d)
+    e = expect_error(d.req("POST", "/api/models/owner", body=body, headers={"Content-Type": ctype}), 409, "conflict")
+    check("sphere.mtl" in e["message"], "409 does not name the file: %r" % e["message"])
+    with open(sphere_mtl, "rb") as f:
+        eq(f.read(), before, "sphere.mtl after a refused upload")
+    eq(_folder(d), folder, "the models folder after a refused upload")
+    expect_error(d.get("/api/models/owner"), 404, "not_found")
+    # the same bytes: accepted, the file left as it is, and kept when the upload is deleted
+    body, ctype = multipart([("model", "own.obj", "model/obj", b"mtllib sphere.mtl\n" + TETRA_OBJ),
+                             ("mtl", "sphere.mtl", "text/plain", before)])
+    expect_json(d.req("POST", "/api/models/owner", body=body, headers={"Content-Type": ctype}), 201)
+    # its own library: written, replaced by a replace, removed with the model
+    lib = os.path.join(d.models_dir, "owner-lib.mtl")
+    for i, kd in enumerate((b"1 0 1", b"0 1 0")):
+        body, ctype = multipart([("model", "o.obj", "model/obj", b"mtllib owner-lib.mtl\nusemtl m\n" + TETRA_OBJ),
+                                 ("mtl", "owner-lib.mtl", "text/plain", b"newmtl m\nKd " + kd + b"\n")])
+        expect_json(d.req("POST", "/api/models/libowner" + ("?replace=1" if i else ""), body=body,
+                          headers={"Content-Type": ctype}), 200 if i else 201)
+        with open(lib, "rb") as f:
+            check(kd in f.read(), "owner-lib.mtl after upload %d lacks Kd %r" % (i, kd))
+    for name in ("owner", "libowner"):
+        expect_json(d.req("DELETE", "/api/models/" + name))
+    left = _folder(d)
+    check("sphere.mtl" in left, "deleting an upload that sent sphere.mtl's own bytes removed sphere.mtl")
+    for f in ("owner.obj", "libowner.obj", "owner-lib.mtl", ".owner.upload", ".libowner.upload"):
+        check(f not in left, "%s left in the models folder after DELETE: %r" % (f, left))
+    with open(sphere_mtl, "rb") as f:
+        eq(f.read(), before, "sphere.mtl at the end")
+
+
+@test
+def test_upload_one_model_file():
+    """A second model file in one upload would become a model of the folder past every check: 400."""
+    d = upload_daemon()
+    body, ctype = multipart([("a", "a.obj", "model/obj", TETRA_OBJ), ("b", "sphere.obj", "model/obj", CUBE_OBJ)])
+    folder = _folder(d)
+    e = expect_error(d.req("POST", "/api/models/pair", body=body, headers={"Content-Type": ctype}), 400,
+                     "bad_request")
+    check("sphere.obj" in e["message"], "400 does not name the second file: %r" % e["message"])
+    eq(_folder(d), folder, "the models folder after a refused upload")
+    eq(d.model("sphere")["triangles"], 5120, "sphere after the refused upload")

@@ -152,3 +152,15 @@ def test_wildcard_bind_without_token_403():
         d.stop_clean()
     finally:
         d.cleanup()
+
+
+@test
+def test_token_scheme_name_in_any_case():
+    """The scheme's name is case-insensitive (RFC 9110, 11.1); the token is not."""
+    d = token_daemon()
+    for scheme in ("bearer", "BEARER", "BeArEr"):
+        r = d.post("/api/models/cornell/trees", {"accel": "kd", "builder": "median", "wait": True},
+                   headers={"Authorization": scheme + " " + TOKEN})
+        eq(r.status, 200, "%s <token>: %s" % (scheme, r.short()))
+    expect_error(d.post("/api/models/cornell/trees", {"accel": "kd", "builder": "median"},
+                        headers={"Authorization": "bearer " + TOKEN.upper()}), 401, "unauthorized")

@@ -75,6 +75,7 @@ def test_static_etag_and_304():
     eq(r2.body, b"", "304 body")
     r3 = d.get("/style.css", headers={"If-None-Match": '"something-else"'})
     eq(r3.status, 200, "GET /style.css with a stale If-None-Match")
+    eq(d.get("/style.css", headers={"If-None-Match": "*"}).status, 304, "GET /style.css with If-None-Match: *")
     # ETag follows size and modification time
     path = os.path.join(d.web, "style.css")
     with open(path, "wb") as f:
