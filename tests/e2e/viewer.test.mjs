@@ -1,10 +1,14 @@
 // viewer.test.mjs - the viewer (web/) in Debian's chromium against a real
 // arbord serve: frames, orbit, stats and legend, the box overlay against the
 // rendered model, the ray inspector against heat mode, compare, URL state,
-// upload errors, the phone layout and a clean console.
+// upload errors, the phone layout, a daemon with --token-file, layouts that
+// fit their cards, and a clean console.
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
+import fs from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
 import {
     withViewer, screenshot, recordRequests, waitFullFrame, framePixels, overlayBox, postJSON,
 } from './lib.mjs';
@@ -263,6 +267,7 @@ test('the compare view draws Embree beside the trees, at its default and in its 
                 label: f.querySelector('text.embree-label')?.textContent || '',
             })));
             await screenshot(page, `compare-beside-${choice}`);
+            assert.deepEqual(chartClashes(await chartLayout(page)), []);
             for (const c of charts) {
                 const rays = /^(primary|diffuse|shadow)_mrays$/.test(c.metric);
                 assert.equal(c.line, rays ? 1 : 0, `${c.metric}: Embree lines`);
@@ -314,10 +319,11 @@ test('a link with a view in its URL restores the controls', T, async () => {
     });
 });
 
-test("a broken OBJ upload shows the daemon's error", T, async () => {
+test("a broken OBJ upload shows the daemon's error, over the page without moving it", T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
         await page.goto(`${d.base}/?model=cornell`);
         await waitFullFrame(page);
+        const before = await frameBox(page);
         const answer = page.waitForResponse((r) => new URL(r.url()).pathname === '/api/models/broken');
         await page.setInputFiles('#file-input', {
             name: 'broken.obj',
@@ -333,6 +339,12 @@ test("a broken OBJ upload shows the daemon's error", T, async () => {
         assert.ok(text.includes(body.error.message), `"${text}" does not show "${body.error.message}"`);
         assert.ok(text.includes(String(res.status())), 'the status is not shown');
         await screenshot(page, 'upload-error');
+        assert.deepEqual(await frameBox(page), before, 'the upload error moved the frame');
+        const shown = await page.$eval('#upload-status', (e) => {
+            const r = e.getBoundingClientRect();
+            return { left: r.left, right: r.right, width: innerWidth };
+        });
+        assert.ok(shown.left >= 0 && shown.right <= shown.width, `the upload error sticks out: ${JSON.stringify(shown)}`);
         const names = await page.$$eval('#model option', (o) => o.map((e) => e.value));
         assert.ok(!names.includes('broken'));
         // the browser logs failed loads as console errors; the only one allowed is this upload's
@@ -385,4 +397,277 @@ test('no console errors on load', T, async () => {
         assert.deepEqual(unlabelled, []);
         assert.deepEqual(errors, []);
     });
+});
+
+/** What sticks out sideways: the page past the window, a card's or a scroll box's content past its box. */
+function overflows(page) {
+    return page.evaluate(() => {
+        const name = (e) => `${e.id || e.className} in ${e.closest('.card')?.querySelector('h2')?.textContent || '?'}`;
+        const out = [];
+        if (document.documentElement.scrollWidth > innerWidth) out.push(`the page: ${document.documentElement.scrollWidth} > ${innerWidth}`);
+        for (const e of document.querySelectorAll('.card, .scroll')) {
+            if (e.offsetParent && e.scrollWidth > e.clientWidth) out.push(`${name(e)}: ${e.scrollWidth} > ${e.clientWidth}`);
+        }
+        for (const t of document.querySelectorAll('table.kv')) {
+            const box = t.parentElement.getBoundingClientRect(), r = t.getBoundingClientRect();
+            if (t.offsetParent && r.right > box.right + 0.5) out.push(`table ${name(t)} ends at ${r.right}, its box at ${box.right}`);
+        }
+        return out;
+    });
+}
+
+/** Pairs of neighbouring labels less than `gap` apart (or overlapping), from their boxes [left, right]. */
+function crowded(boxes, gap) {
+    const sorted = [...boxes].sort((a, b) => a.left - b.left);
+    return sorted.slice(1).map((b, i) => [sorted[i], b]).filter(([a, b]) => b.left - a.right < gap)
+        .map(([a, b]) => `"${a.text}" and "${b.text}": ${(b.left - a.right).toFixed(1)} apart`);
+}
+
+/** Each compare chart's axis labels and bar value labels ([left, right] in SVG units) and Embree's line (x, or null). */
+function chartLayout(page) {
+    return page.$$eval('figure.chart', (fs) => fs.map((f) => {
+        const box = (t) => {
+            const b = t.getBBox();
+            return { text: t.textContent, left: b.x, right: b.x + b.width };
+        };
+        const line = f.querySelector('line.embree');
+        return {
+            metric: f.dataset.metric,
+            ticks: [...f.querySelectorAll('text.tick')].map(box),
+            values: [...f.querySelectorAll('text.value:not(.tick)')].map(box),
+            line: line ? Number(line.getAttribute('x1')) : null,
+        };
+    }));
+}
+
+/** Axis labels closer than 8 units, and value labels that Embree's line runs through. */
+function chartClashes(charts) {
+    return charts.flatMap((c) => [
+        ...crowded(c.ticks, 8).map((w) => `${c.metric}: axis labels ${w}`),
+        ...c.values.filter((v) => c.line !== null && v.left - 1 < c.line && c.line < v.right + 1)
+            .map((v) => `${c.metric}: Embree's line at ${c.line.toFixed(1)} crosses "${v.text}"`),
+    ]);
+}
+
+test('split view, its stats and the ray inspector fit their cards at 1400, 1920 and 420 px wide', T, async () => {
+    await withViewer({ daemon: { shared: ['bunny.obj'] }, browser: { viewport: { width: 1400, height: 900 } } }, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=bunny&accel=kd&builder=median&split=bvh:median&spp=1`);
+        await waitFullFrame(page, 0, 60000);
+        await waitFullFrame(page, 1, 60000);
+        await page.waitForFunction(() => [...document.querySelectorAll('#stats-table tr[data-key="nodes"] td')]
+            .filter((td) => /\d/.test(td.textContent)).length === 2, null, { timeout: 60000 });
+        const box = await frameBox(page);
+        await page.mouse.click(box.x + box.width * 0.5, box.y + box.height * 0.5);
+        await page.waitForSelector('#ray-heat', { timeout: 30000 });
+        for (const [width, height] of [[1400, 900], [1920, 1080], [420, 900]]) {
+            await page.setViewportSize({ width, height });
+            await page.waitForTimeout(300);
+            await screenshot(page, `split-ray-${width}`);
+            assert.deepEqual(await overflows(page), [], `at ${width} px`);
+        }
+        // both trees' columns say what they hold: the binary BVH's bytes are freed once collapsed
+        const bytes = await page.$$eval('#stats-table tr[data-key="bytes"] td', (tds) => tds.map((td) => td.textContent.trim()));
+        assert.match(bytes[0], /MiB$/);
+        assert.equal(bytes[1], 'freed');
+        // the heat legend's numbers stay apart in the narrow card
+        await page.setViewportSize({ width: 1400, height: 900 });
+        await page.selectOption('#mode', 'heat');
+        await page.waitForFunction(() => [...document.querySelectorAll('#legend .legend-row')]
+            .filter((r) => r.dataset.heatScale !== '').length === 2, null, { timeout: 60000 });
+        await screenshot(page, 'split-heat-legend');
+        const rows = await page.$$eval('#legend .legend-ticks', (ts) => ts.map((t) => [...t.children].map((s) => {
+            const r = s.getBoundingClientRect();
+            return { text: s.textContent, left: r.left, right: r.right };
+        })));
+        for (const ticks of rows) assert.deepEqual(crowded(ticks, 12), [], JSON.stringify(ticks.map((t) => t.text)));
+        assert.deepEqual(errors, []);
+    });
+});
+
+test('the selects of the controls show their choices whole', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=cornell&accel=kd&builder=spatial&split=bvh:median`);
+        await waitFullFrame(page);
+        for (const [width, height] of [[1400, 900], [1280, 800], [420, 900]]) {
+            await page.setViewportSize({ width, height });
+            // a select as wide as its widest option needs: a copy of it at its own width
+            // (not the model's: its names are the daemon's, up to 64 characters)
+            const cut = await page.$$eval('.side select:not(#model)', (sels) => sels.map((sel) => {
+                const copy = sel.cloneNode(true);
+                Object.assign(copy.style, { position: 'absolute', width: 'auto', visibility: 'hidden' });
+                sel.parentElement.append(copy);
+                const need = copy.getBoundingClientRect().width;
+                copy.remove();
+                return { id: sel.id, has: sel.getBoundingClientRect().width, need };
+            }).filter((s) => s.has < s.need - 0.5));
+            assert.deepEqual(cut, [], `at ${width} px`);
+        }
+        assert.deepEqual(errors, []);
+    });
+});
+
+test('the boxes line says how many of how many boxes it draws when they are capped', T, async () => {
+    await withViewer({ daemon: { shared: ['bunny.obj'] } }, async (d, { page, errors }) => {
+        const first = page.waitForResponse((r) => /\/boxes\?/.test(r.url()), { timeout: 60000 });
+        await page.goto(`${d.base}/?model=bunny&accel=kd&builder=median&spp=1&depth=20&boxes=leaves`);
+        await waitFullFrame(page, 0, 60000);
+        // the line once the boxes of that depth are in (window.arbor: the page's app) and the panels redrawn
+        const info = async (depth) => {
+            await page.waitForFunction((dep) => window.arbor.panes[0].boxes?.data?.depth === dep, depth, { timeout: 60000 });
+            await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+            return page.textContent('#boxes-info');
+        };
+        const num = (v) => v.toLocaleString('en-US');
+        const said = await info(20);
+        await screenshot(page, 'boxes-capped');
+        const real = await (await first).json();
+        assert.equal(real.truncated, true, 'bunny kd median has fewer leaves than the cap');
+        assert.equal(real.boxes.length, real.max_boxes);
+        // the daemon counts every matching node (count) or only those it sends: either reads right
+        assert.equal(said, real.count > real.boxes.length
+            ? `k-d median: ${num(real.boxes.length)} of ${num(real.count)} leaf boxes up to depth 20 drawn (capped at ${num(real.max_boxes)})`
+            : `k-d median: ${num(real.boxes.length)} leaf boxes up to depth 20 drawn, more left out (capped at ${num(real.max_boxes)})`);
+        for (const [depth, extra, words] of [[21, 0, /^k-d median: 20,000 leaf boxes up to depth 21 drawn, more left out \(capped at 20,000\)$/],
+            [22, 98287, /^k-d median: 20,000 of 118,287 leaf boxes up to depth 22 drawn \(capped at 20,000\)$/]]) {
+            await page.route('**/boxes?*', async (route) => {
+                const res = await route.fetch();
+                const json = await res.json();
+                route.fulfill({ response: res, json: { ...json, count: json.boxes.length + extra } });
+            });
+            await page.fill('#depth', String(depth));
+            await page.dispatchEvent('#depth', 'input');
+            assert.match(await info(depth), words);
+            await page.unroute('**/boxes?*');
+        }
+        assert.deepEqual(errors, []);
+    });
+});
+
+// A re-run cancelled half way leaves the charts of the run that finished.
+test('cancelling a re-run of the compare view keeps the last finished charts', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=sphere&tab=compare`);
+        await page.waitForFunction(() => document.getElementById('model').value === 'sphere');
+        const bars = () => page.$$eval('figure.chart', (fs) => fs.map((f) => [f.dataset.metric,
+            [...f.querySelectorAll('rect.bar.ours')].map((r) => r.dataset.value),
+            [...f.querySelectorAll('text.value')].map((t) => t.textContent)]));
+        await page.click('#cmp-start');
+        await page.waitForFunction(() => /^done/.test(document.getElementById('cmp-progress-text').textContent), null, { timeout: 170000 });
+        const finished = await bars();
+        assert.equal(finished.length, 10);
+        await page.click('#cmp-start');
+        // the re-run's first rows are drawn with placeholders for the rest
+        await page.waitForFunction(() => [...document.querySelectorAll('figure.chart text.value')].some((t) => t.textContent === '…'),
+            null, { timeout: 60000 });
+        await page.click('#cmp-cancel');
+        await page.waitForFunction(() => !document.getElementById('cmp-error').hidden, null, { timeout: 30000 });
+        await screenshot(page, 'compare-rerun-cancelled');
+        assert.equal(await page.textContent('#cmp-error'),
+            'The re-run of the benchmark of sphere was cancelled. The charts show the last finished run.');
+        assert.deepEqual(await bars(), finished);
+        assert.equal(await page.isDisabled('#cmp-start'), false);
+        assert.deepEqual(errors, []);
+    });
+});
+
+// The charts' layout, on rows made to crowd it: a build-time axis over seven
+// decades, and bars that end just short of Embree's line.
+test("the compare charts keep axis labels apart and bar values off Embree's line", T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        const trees = [['bvh', 'spatial'], ['bvh', 'median'], ['bvh', 'mean'], ['bvh', 'sah'],
+            ['kd', 'spatial'], ['kd', 'median'], ['kd', 'mean'], ['kd', 'sah']];
+        const rows = trees.map(([accel, builder], i) => ({
+            model: 'sphere', accel, builder,
+            build_ms: [0.74, 1.99, 0.79, 1.98, 79.79, 42.48, 32.42, 86000][i],
+            render_ms: [1.5, 30, 400, 5000, 6e4, 7e5, 8e6, 120][i],
+            mean_leaf_depth: 10 + i, mean_tris_per_leaf: 2 + i, sah_cost: 30 + i,
+            primary_mrays: [33.09, 22.1, 34.85, 13.97, 13.38, 8.54, 8.21, 21.9][i],
+            diffuse_mrays: [7.3, 5.67, 8.4, 7.04, 1.14, 0.87, 2.19, 4.3][i],
+            shadow_mrays: [13.21, 10.46, 14.34, 13.82, 3.53, 3.27, 2.55, 7.7][i],
+            diffuse_nodes_per_ray: 9 + i, diffuse_tris_per_ray: 20 + i,
+        }));
+        rows.push({ model: 'sphere', accel: 'embree', builder: 'robust', primary_mrays: 22.66, diffuse_mrays: 5.84, shadow_mrays: 9.36 });
+        const job = { id: '7', model: 'sphere', state: 'done', progress: { done: 9, total: 9 }, elapsed_ms: 1000, rows, error: null };
+        await page.route('**/api/bench', (r) => r.fulfill({ status: 202, json: { id: '7', state: 'queued' } }));
+        await page.route('**/api/jobs/7', (r) => r.fulfill({ json: job }));
+        await page.goto(`${d.base}/?model=sphere&tab=compare`);
+        await page.waitForFunction(() => document.getElementById('model').value === 'sphere');
+        await page.click('#cmp-start');
+        await page.waitForFunction(() => /^done/.test(document.getElementById('cmp-progress-text').textContent));
+        await screenshot(page, 'compare-crowded');
+        const charts = await chartLayout(page);
+        assert.equal(charts.length, 10);
+        assert.ok(charts.find((c) => c.metric === 'build_ms').ticks.length >= 6, 'the build-time axis lost its decades');
+        assert.equal(charts.filter((c) => c.line !== null).length, 3);
+        assert.deepEqual(chartClashes(charts), []);
+        assert.deepEqual(errors, []);
+    });
+});
+
+// --token-file: changes need the token, frames and reads do not. The viewer
+// builds trees through the open routes when the POST is refused, and asks for
+// the token when an upload or a benchmark is refused.
+test('a daemon with --token-file: no false error, stats shown, and a token typed in lets an upload and a benchmark through', T, async () => {
+    const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'arbor-token-'));
+    const tokenFile = path.join(dir, 'token');
+    fs.writeFileSync(tokenFile, 'e2e-token-0123\n');
+    try {
+        await withViewer({ daemon: { extraArgs: ['--token-file', tokenFile] } }, async (d, { page, errors }) => {
+            const sent = [];
+            page.on('request', (r) => {
+                if (r.method() !== 'GET') sent.push({ method: r.method(), path: new URL(r.url()).pathname, auth: r.headers().authorization || '' });
+            });
+            await page.goto(`${d.base}/?model=sphere&accel=kd&builder=sah`);
+            await waitFullFrame(page, 0, 60000);
+            // the tree's stats, or the error the viewer said instead
+            await page.waitForFunction(() => /\d/.test(document.querySelector('#stats-table tr[data-key="nodes"] td').textContent) ||
+                document.querySelector('.notice.error, #stats .error'), null, { timeout: 60000 });
+            assert.deepEqual(await page.$$eval('.notice, #stats .error, .badge.error:not([hidden])', (e) => e.map((x) => x.textContent)), []);
+            const st = (await fetch(`${d.base}/api/stats?model=sphere&accel=kd&builder=sah`).then((r) => r.json()))
+                .trees.find((t) => t.model === 'sphere' && t.accel === 'kd' && t.builder === 'sah');
+            assert.equal(await page.textContent('#stats-table tr[data-key="nodes"] td'), st.nodes.toLocaleString('en-US'));
+            assert.ok(sent.some((r) => r.path === '/api/models/sphere/trees'), 'the viewer did not ask to build the tree');
+            await screenshot(page, 'token-tree');
+
+            // an upload is refused: the token is asked for, a wrong one refused, the right one lets it through
+            await page.setInputFiles('#file-input', {
+                name: 'tri.obj', mimeType: 'text/plain', buffer: Buffer.from('v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n'),
+            });
+            await page.waitForSelector('#token-dialog[open], #upload-status.error');
+            assert.equal(await page.isVisible('#upload-status.error'), false, await page.textContent('#upload-text'));
+            assert.match(await page.textContent('#token-why'), /Uploading tri\.obj as "tri" needs this daemon's bearer token/);
+            assert.equal(await page.isVisible('#token-refused'), false);
+            await page.fill('#token-input', 'not-the-token');
+            await page.click('#token-dialog button[type="submit"]');
+            await page.waitForFunction(() => document.getElementById('token-dialog').open &&
+                !document.getElementById('token-refused').hidden, null, { timeout: 10000 });
+            assert.equal(await page.evaluate(() => sessionStorage.getItem('arbor.token')), null, 'a refused token was kept');
+            await screenshot(page, 'token-refused');
+            await page.fill('#token-input', 'e2e-token-0123');
+            await page.click('#token-dialog button[type="submit"]');
+            await page.waitForFunction(() => [...document.querySelectorAll('#model option')].some((o) => o.value === 'tri'), null, { timeout: 10000 });
+            assert.match(await page.textContent('#upload-text'), /Uploaded "tri"/);
+            const puts = sent.filter((r) => r.path === '/api/models/tri').map((r) => r.auth);
+            assert.deepEqual(puts, ['', 'Bearer not-the-token', 'Bearer e2e-token-0123']);
+            assert.equal(await page.evaluate(() => sessionStorage.getItem('arbor.token')), 'e2e-token-0123');
+
+            // a benchmark asks for the token as well (of sphere: long enough to cancel)
+            await page.evaluate(() => sessionStorage.clear());
+            await page.selectOption('#model', 'sphere');
+            await page.click('#tab-compare');
+            await page.click('#cmp-start');
+            await page.waitForSelector('#token-dialog[open], #cmp-error:not([hidden])');
+            assert.match(await page.textContent('#token-why'), /^Starting the benchmark of sphere needs/);
+            await page.fill('#token-input', 'e2e-token-0123');
+            await page.click('#token-dialog button[type="submit"]');
+            await page.click('#cmp-cancel', { timeout: 30000 });
+            await page.waitForFunction(() => /was cancelled/.test(document.getElementById('cmp-error').textContent), null, { timeout: 30000 });
+            assert.deepEqual(sent.filter((r) => r.path === '/api/bench' || r.path.startsWith('/api/jobs/')).map((r) => `${r.method} ${r.auth}`),
+                ['POST ', 'POST Bearer e2e-token-0123', 'DELETE Bearer e2e-token-0123']);
+            // the refused requests are the browser's only console errors
+            assert.deepEqual(errors.filter((e) => !/status of 401/.test(e)), []);
+        });
+    } finally {
+        fs.rmSync(dir, { recursive: true, force: true });
+    }
 });

@@ -1,6 +1,7 @@
 // api.js - talking to arbord (docs/API.md). Every failure becomes an
 // ApiError whose .words is a sentence for a person: what was asked, the
-// daemon's error code and its message, never swallowed.
+// daemon's error code and its message, never swallowed. Requests that change
+// the daemon's state carry the bearer token the user gave (token.js), if any.
 
 export class ApiError extends Error {
     constructor(what, status, code, message, extra = {}) {
@@ -17,7 +18,7 @@ export class ApiError extends Error {
 
 const CODE_WORDS = {
     bad_request: 'the request was not valid',
-    unauthorized: 'a bearer token is needed',
+    unauthorized: 'this daemon needs its bearer token (it was started with --token-file)',
     forbidden: 'the daemon does not allow changes from here',
     not_found: 'not found',
     method_not_allowed: 'the daemon does not take that method here',
@@ -71,7 +72,21 @@ export function errorFromText(what, status, text) {
     return new ApiError(what, status, code, message);
 }
 
-async function call(what, url, init = {}) {
+// The token of a daemon started with --token-file, as the user typed it: kept for this tab only.
+const TOKEN_KEY = 'arbor.token';
+export const savedToken = () => sessionStorage.getItem(TOKEN_KEY) || '';
+export const saveToken = (token) => sessionStorage.setItem(TOKEN_KEY, token);
+
+/** A state-changing request sent with `sent` (maybe '') was answered 401: that token is wrong. */
+export function tokenRefused(sent) {
+    // a token typed in while the request was on its way is not the one refused
+    if (sent === savedToken()) sessionStorage.removeItem(TOKEN_KEY);
+}
+
+/** auth: the request changes state, so it carries the token; a 401 error says whether it did (tokenSent). */
+async function call(what, url, init = {}, auth = false) {
+    const sent = auth ? savedToken() : '';
+    if (sent) init = { ...init, headers: { ...init.headers, Authorization: `Bearer ${sent}` } };
     let res;
     try {
         res = await fetch(url, init);
@@ -79,22 +94,28 @@ async function call(what, url, init = {}) {
         if (e.name === 'AbortError') throw e;
         throw new ApiError(what, 0, '', e.message);
     }
-    if (!res.ok) throw await errorFrom(what, res);
+    if (!res.ok) {
+        const err = await errorFrom(what, res);
+        if (auth && res.status === 401) {
+            tokenRefused(sent);
+            err.tokenSent = sent !== '';
+        }
+        throw err;
+    }
     return res;
 }
 
-export async function getJSON(what, url, init) {
-    const res = await call(what, url, init);
+export async function getJSON(what, url) {
+    const res = await call(what, url);
     return res.json();
 }
 
-export async function postJSON(what, url, body, init = {}) {
+export async function postJSON(what, url, body, auth = false) {
     const res = await call(what, url, {
         method: 'POST',
         headers: { 'Content-Type': 'application/json' },
         body: JSON.stringify(body),
-        ...init,
-    });
+    }, auth);
     return res.json();
 }
 
@@ -114,7 +135,7 @@ export function treeStats(model, accel, builder) {
 export const buildTree = (model, accel, builder) =>
     postJSON(`Building the ${accel} ${builder} tree of ${model}`, `/api/models/${enc(model)}/trees`, {
         accel, builder, wait: true,
-    });
+    }, true);
 
 export function treeBoxes(model, accel, builder, depth, kind) {
     let q = `depth=${depth}`;
@@ -152,7 +173,7 @@ export async function renderFrame(req, init = {}) {
 export const renderJSON = (req) =>
     postJSON('Measuring the frame', '/api/render', { ...req, format: 'json' });
 
-export const startBench = (body) => postJSON(`Starting the benchmark of ${body.model}`, '/api/bench', body);
+export const startBench = (body) => postJSON(`Starting the benchmark of ${body.model}`, '/api/bench', body, true);
 export const getJob = (id) => getJSON(`Reading benchmark job ${id}`, `/api/jobs/${enc(id)}`);
 export const cancelJob = (id) =>
-    call(`Cancelling benchmark job ${id}`, `/api/jobs/${enc(id)}`, { method: 'DELETE' }).then((r) => r.json());
+    call(`Cancelling benchmark job ${id}`, `/api/jobs/${enc(id)}`, { method: 'DELETE' }, true).then((r) => r.json());

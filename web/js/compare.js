@@ -3,9 +3,11 @@
 // rates and the work per diffuse ray behind them),
 // with the study's figures beside ours for galleon and castle and Embree's
 // figure as a line where the job measured it (the "Beside" choice: Embree at
-// its default or in its robust mode, sent as the job's `embree`).
+// its default or in its robust mode, sent as the job's `embree`). A re-run
+// that is cancelled or fails leaves the last finished run's charts.
 
 import * as api from './api.js';
+import { withToken } from './token.js';
 import { STUDY_SOURCE, studyFigure, hasStudy } from './study.js';
 import { fmt } from './panels.js';
 
@@ -71,7 +73,7 @@ export class Compare {
         };
         let j;
         try {
-            j = await api.startBench(body);
+            j = await withToken(`Starting the benchmark of ${model}`, () => api.startBench(body));
         } catch (e) {
             this.fail(e.words || String(e));
             return;
@@ -88,7 +90,7 @@ export class Compare {
         try {
             j = await api.getJob(job.id);
         } catch (e) {
-            this.fail(e.words || String(e));
+            this.ended(job, e.words || String(e), null);
             return;
         }
         if (this.job !== job) return;
@@ -105,9 +107,10 @@ export class Compare {
             $('cmp-progress-text').textContent = `done: ${(j.rows || []).length} rows in ${secs} s`;
             this.draw(job.model, j.rows || []);
         } else if (j.state === 'failed' || j.state === 'cancelled') {
-            this.fail(j.state === 'failed'
-                ? `The benchmark of ${job.model} failed: ${j.error || 'the daemon gave no reason'}.`
-                : `The benchmark of ${job.model} was cancelled.`);
+            const run = this.results.has(job.model) ? 'The re-run of the benchmark' : 'The benchmark';
+            this.ended(job, j.state === 'failed'
+                ? `${run} of ${job.model} failed: ${j.error || 'the daemon gave no reason'}.`
+                : `${run} of ${job.model} was cancelled.`, j.rows);
         } else {
             this.pollTimer = setTimeout(() => this.poll(), 400);
         }
@@ -115,8 +118,9 @@ export class Compare {
 
     async cancel() {
         if (!this.job) return;
+        const { id, model } = this.job;
         try {
-            await api.cancelJob(this.job.id);
+            await withToken(`Cancelling the benchmark of ${model}`, () => api.cancelJob(id));
         } catch (e) {
             this.setError(e.words || String(e));
         }
@@ -135,6 +139,14 @@ export class Compare {
         this.setError(text);
     }
 
+    /** The job ended unfinished: the charts go back to the model's last finished run, or,
+     *  without one, show what the job measured (rows) with no placeholders for the rest. */
+    ended(job, text, rows) {
+        const last = this.results.get(job.model);
+        this.fail(last ? `${text} The charts show the last finished run.` : text);
+        this.draw(job.model, last || (rows && rows.length ? rows : null));
+    }
+
     /** Draws the eight charts for a model's bench rows (partial while running; peer: the job
      *  asked for Embree, whose row comes last, so its charts keep room for it from the start). */
     draw(model, rows, partial = false, peer = false) {
@@ -151,6 +163,11 @@ export class Compare {
               and ray tracer (no BVH-SAH there), shown for shape, not as a race. Times on a log scale.</p>` : '');
     }
 }
+
+// Axis labels are centred on their ticks, at least this far apart (SVG units: 1M, 100k).
+const TICK_GAP = 34;
+// A value label's width per character (10 px text, SVG units), a little over the widest digit.
+const CHAR_W = 6.5;
 
 /** 1, 10, 100, 1k, 10k, 100k, 1M: log-axis ticks that fit side by side. */
 function compact(v) {
@@ -177,14 +194,21 @@ function chartHTML(c, model, ours, embree, study, partial, peerAsked) {
     if (c.log && values.length) {
         const lo = Math.floor(Math.log10(Math.min(...values)) - 0.0001);
         const hi = Math.ceil(Math.log10(Math.max(...values)) + 0.0001);
-        scale = (v) => (v > 0 ? Math.max(2, ((Math.log10(v) - lo) / Math.max(1, hi - lo)) * plotW) : 0);
+        const decades = Math.max(1, hi - lo), every = Math.ceil(TICK_GAP / (plotW / decades));
+        scale = (v) => (v > 0 ? Math.max(2, ((Math.log10(v) - lo) / decades) * plotW) : 0);
         scale.ticks = [];
-        for (let k = lo; k <= hi; k++) scale.ticks.push([10 ** k, ((k - lo) / Math.max(1, hi - lo)) * plotW]);
+        for (let k = lo; k <= hi; k += every) scale.ticks.push([10 ** k, ((k - lo) / decades) * plotW]);
     } else {
         const max = values.length ? Math.max(...values) : 1;
         scale = (v) => (v > 0 ? (v / max) * plotW : 0);
         scale.ticks = [[0, 0], [max, plotW]];
     }
+    const ex = e === null ? null : labelW + scale(e);
+    // a bar's value label starts past the bar's end, or past Embree's line where it would cross it
+    const valueAt = (end, y, text) => {
+        const x = end + 4, crosses = ex !== null && x - 2 < ex && x + text.length * CHAR_W + 2 > ex;
+        return `<text class="value" x="${(crosses ? ex + 4 : x).toFixed(1)}" y="${y}">${text}</text>`;
+    };
     let svg = '';
     rows.forEach((r, i) => {
         const y = top + i * (groupH + gap);
@@ -192,14 +216,14 @@ function chartHTML(c, model, ours, embree, study, partial, peerAsked) {
         const w = r.v === null ? 0 : scale(r.v);
         svg += `<rect class="bar ours" x="${labelW}" y="${y}" width="${w.toFixed(1)}" height="${barH}" rx="2"
                  data-accel="${r.a}" data-builder="${r.b}" data-value="${r.v ?? ''}"><title>ours, ${treeLabel(r.a, r.b)}: ${fmt(r.v)} ${c.unit}</title></rect>`;
-        svg += `<text class="value" x="${labelW + w + 4}" y="${y + barH - 2}">${r.v === null ? (partial ? '…' : '—') : fmt(r.v)}</text>`;
+        svg += valueAt(labelW + w, y + barH - 2, r.v === null ? (partial ? '…' : '—') : fmt(r.v));
         if (withStudy) {
             const ys = y + barH + 2;
             const ws = r.s === null ? 0 : scale(r.s);
             if (r.s !== null) {
                 svg += `<rect class="bar study" x="${labelW}" y="${ys}" width="${ws.toFixed(1)}" height="${barH}" rx="2"
                          data-accel="${r.a}" data-builder="${r.b}" data-value="${r.s}"><title>study, ${treeLabel(r.a, r.b)}: ${fmt(r.s)} ${c.unit}</title></rect>`;
-                svg += `<text class="value" x="${labelW + ws + 4}" y="${ys + barH - 2}">study ${fmt(r.s)}</text>`;
+                svg += valueAt(labelW + ws, ys + barH - 2, `study ${fmt(r.s)}`);
             } else {
                 svg += `<text class="value" x="${labelW + 2}" y="${ys + barH - 2}">not in the study</text>`;
             }
@@ -209,14 +233,13 @@ function chartHTML(c, model, ours, embree, study, partial, peerAsked) {
     svg += `<line class="axis" x1="${labelW}" y1="${top - 2}" x2="${labelW}" y2="${axisY}"/>`;
     for (const [v, x] of scale.ticks) {
         const label = c.log ? compact(v) : fmt(v, v < 1 ? 2 : 0);
-        svg += `<text class="value" x="${labelW + x}" y="${axisY + 11}" text-anchor="${x === 0 ? 'start' : x >= plotW ? 'end' : 'middle'}">${label}</text>`;
+        svg += `<text class="value tick" x="${labelW + x}" y="${axisY + 11}" text-anchor="middle">${label}</text>`;
     }
     const peer = embree && embree.builder === 'robust' ? 'Embree, robust' : 'Embree';
-    if (e !== null) {
-        const x = labelW + scale(e);
-        const right = x > labelW + plotW / 2; // the label on the side with room
-        svg += `<line class="embree" x1="${x}" y1="${top - 2}" x2="${x}" y2="${axisY}"/>`;
-        svg += `<text class="embree-label" x="${right ? x - 3 : x + 3}" y="${top - 6}"
+    if (ex !== null) {
+        const right = ex > labelW + plotW / 2; // the label on the side with room
+        svg += `<line class="embree" x1="${ex}" y1="${top - 2}" x2="${ex}" y2="${axisY}"/>`;
+        svg += `<text class="embree-label" x="${right ? ex - 3 : ex + 3}" y="${top - 6}"
                  text-anchor="${right ? 'end' : 'start'}">${peer} ${fmt(e)}</text>`;
     }
     const label = `${c.title} of the eight trees of ${model}${c.unit ? ', ' + c.unit : ''}, ${c.better} is better` +

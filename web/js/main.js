@@ -381,11 +381,16 @@ class App {
                     : `${name}: ${p.boxes.error.words}`);
             } else {
                 const d = p.boxes.data;
-                const n = (d.boxes || []).length;
-                parts.push(`${name}: ${n.toLocaleString('en-US')} box${n === 1 ? '' : 'es'}` +
-                    (d.truncated ? ` drawn of ${Number(d.count).toLocaleString('en-US')} (capped at ${Number(d.max_boxes).toLocaleString('en-US')})` : '') +
-                    // the depth of the boxes shown, not the slider's: they may still be on their way
-                    (b.leaves ? ' (leaves)' : b.all ? ' (all levels)' : ` at depth ${d.depth}`));
+                const n = (d.boxes || []).length, count = Math.max(n, Number(d.count) || 0);
+                const num = (v) => v.toLocaleString('en-US');
+                // the depth of the boxes shown, not the slider's: they may still be on their way
+                const what = `${b.leaves ? 'leaf ' : ''}box${count === 1 ? '' : 'es'}` +
+                    (b.leaves ? ` up to depth ${d.depth}` : b.all ? ` at depths 0–${d.depth}` : ` at depth ${d.depth}`);
+                // count: every node that matches; boxes: at most max_boxes of them
+                const cap = `(capped at ${num(Number(d.max_boxes))})`;
+                parts.push(!d.truncated ? `${name}: ${num(n)} ${what}`
+                    : count > n ? `${name}: ${num(n)} of ${num(count)} ${what} drawn ${cap}`
+                        : `${name}: ${num(n)} ${what} drawn, more left out ${cap}`);
             }
         }
         el.textContent = parts.join(' · ');

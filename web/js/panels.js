@@ -61,7 +61,8 @@ export function renderStats(el, app) {
         ? `${fmt(c.st.refs / c.st.triangles, 3)}${cols.length === 1 ? ` <span class="muted small">(${fmt(c.st.refs)} / ${fmt(c.st.triangles)})</span>` : ''}`
         : stat('refs')(c)), 'duplication');
     html += row('Bytes', (c) => (!c.st ? stat('bytes')(c)
-        : c.st.wide && c.st.bytes === 0 ? '<span class="muted">freed once collapsed</span>' : fmtBytes(c.st.bytes)), 'bytes');
+        : c.st.wide && c.st.bytes === 0 ? (cols.length === 1 ? '<span class="muted">freed once collapsed</span>'
+            : '<span class="muted" title="freed once collapsed into the wide tree">freed</span>') : fmtBytes(c.st.bytes)), 'bytes');
     html += row('SAH cost', stat('sah_cost'), 'sah_cost');
     if (cols.some((c) => c.st && c.st.wide)) {
         // The bvh's rays traverse its binary tree collapsed into wide nodes; a k-d tree's, the tree above.
@@ -92,8 +93,10 @@ export function renderLegend(el, bars, app) {
     el.hidden = false;
     bars.innerHTML = panes.map((p) => {
         const s = p.shown.heatScale;
+        // whole numbers from 10 up, thousands from 10,000: longer ones crowd the ticks of a narrow card
+        const tick = (v) => (v === 0 ? '0' : s < 10 ? fmt(v, 1) : s < 1e4 ? fmt(Math.round(v)) : `${fmt(v / 1e3, 1)}k`);
         const ticks = [0, 0.2, 0.4, 0.6, 0.8, 1].map((f) =>
-            `<span style="left:${f * 100}%">${s === null || s === undefined ? '?' : fmt(f * s, s < 10 ? 1 : 0)}${f === 1 ? '+' : ''}</span>`).join('');
+            `<span style="left:${f * 100}%">${s === null || s === undefined ? '?' : tick(f * s)}${f === 1 ? '+' : ''}</span>`).join('');
         return `<div class="legend-row" data-pane="${p.index}" data-heat-scale="${s ?? ''}">
             ${app.panes.length > 1 ? `<div class="small">${esc(treeLabel(p.tree()))}${p.shown.quick ? ' (quick frame)' : ''}</div>` : ''}
             <div class="legend-bar" role="img" aria-label="Colour scale from blue at 0 through cyan, green, yellow and red to white at ${s ?? 'unknown'} node steps plus triangle tests per pixel"></div>
@@ -137,14 +140,14 @@ export function renderRay(el, app) {
         html += `<tr><th scope="row">Point</th><td>${v3(d.hit.point)}</td></tr>`;
         html += `<tr><th scope="row">Normal</th><td>${v3(d.hit.normal)}</td></tr>`;
     } else {
-        html += '<tr><th scope="row">Hit</th><td>none: the ray leaves the model</td></tr>';
+        html += '<tr><th scope="row">Hit</th><td class="text">none: the ray leaves the model</td></tr>';
     }
     if (r.heat) {
         const h = r.heat;
         const same = h.mean_nodes === counts.nodes && h.mean_tris === counts.tris;
         html += `<tr id="ray-heat" data-nodes="${h.mean_nodes ?? ''}" data-tris="${h.mean_tris ?? ''}"><th scope="row">Heat mode at this pixel</th><td>${fmt(h.mean_nodes)} + ${fmt(h.mean_tris)}${same ? ' ✓ same' : ' ≠ differs'}</td></tr>`;
     } else if (r.heatError) {
-        html += `<tr><th scope="row">Heat mode at this pixel</th><td class="error small">${esc(r.heatError)}</td></tr>`;
+        html += `<tr><th scope="row">Heat mode at this pixel</th><td class="text error small">${esc(r.heatError)}</td></tr>`;
     }
     html += '</tbody></table>';
     if (tested !== counts.tris && steps.length) {

@@ -1,9 +1,11 @@
 // upload.js - drag-and-drop or the file picker: one .obj/.ply/.gz is PUT as
 // the body of /api/models/{name}; an .obj with its .mtl files goes as
 // multipart/form-data POST. XMLHttpRequest for its upload progress. Every
-// error the daemon answers is shown in words.
+// error the daemon answers is shown in words, under the upload button over
+// the page; a 401 asks for the daemon's token and sends the files again.
 
-import { ApiError, errorFromText } from './api.js';
+import { ApiError, errorFromText, savedToken, tokenRefused } from './api.js';
+import { askToken } from './token.js';
 
 const $ = (id) => document.getElementById(id);
 const MODEL_RE = /\.(obj|ply)(\.gz)?$|\.gz$/i;
@@ -105,6 +107,8 @@ export class Uploader {
             xhr.open('PUT', url);
             xhr.setRequestHeader('Content-Type', 'application/octet-stream');
         }
+        const sent = savedToken();
+        if (sent) xhr.setRequestHeader('Authorization', `Bearer ${sent}`);
         const what = `Uploading ${file.name}${mtls.length ? ` with ${mtls.map((m) => m.name).join(', ')}` : ''} as "${name}"`;
         const total = file.size + mtls.reduce((a, m) => a + m.size, 0);
         this.status(`${what}: 0 of ${kib(total)}…`, { progress: 0, actions: [['Cancel', () => xhr.abort()]] });
@@ -133,6 +137,16 @@ export class Uploader {
                 return;
             }
             const err = errorFromText(what, xhr.status, xhr.responseText);
+            if (xhr.status === 401) {
+                tokenRefused(sent);
+                const ask = () => askToken(what, sent !== '').then((ok) => {
+                    if (ok) this.upload(files, replace);
+                    else this.status(err.words, { error: true, actions: [['Enter the token…', ask], close] });
+                });
+                this.status(`${what}: waiting for the daemon's token…`);
+                ask();
+                return;
+            }
             const actions = [close];
             if (err.code === 'conflict' || xhr.status === 409) actions.unshift([`Replace "${name}"`, () => this.upload(files, true)]);
             this.status(err.words, { error: true, actions });

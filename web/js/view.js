@@ -308,7 +308,17 @@ export class Pane {
                 this.badgeBuilding.hidden = true;
             }
         };
-        api.buildTree(name, t.accel, t.builder).then((s) => {
+        const build = async () => {
+            try {
+                return await api.buildTree(name, t.accel, t.builder);
+            } catch (e) {
+                // changes refused (--token-file without the token, or a non-loopback bind):
+                // GET /api/stats builds the tree too, and is open
+                if (e.status === 401 || e.status === 403) return api.treeStats(name, t.accel, t.builder);
+                throw e;
+            }
+        };
+        build().then((s) => {
             this.buildDoneKeys.add(key);
             if (this.statsKey === key) this.stats = s;
             app.refreshModel(name);
