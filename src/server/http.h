@@ -119,6 +119,13 @@ void http_suspend(http_req *r);
 /* The worker has replied: resumes the connection and drops its reference. */
 void http_resume(http_req *r);
 void http_req_release(http_req *r);
+/* Hands r to a pool worker: suspends it and queues a job of one task,
+ * run(ctx, 0), which must reply and resume r; release(ctx) frees ctx once
+ * the job is over. When the job cannot be queued r is answered (507 out of
+ * memory, 503 shutting down) and resumed, and ctx released. http_queue is
+ * the same for an r already suspended. */
+void http_on_pool(http_req *r, void (*run)(void *ctx, uint32_t task), void (*release)(void *ctx), void *ctx);
+void http_queue(http_req *r, void (*run)(void *ctx, uint32_t task), void (*release)(void *ctx), void *ctx);
 
 /* ---- helpers (server.c) ---- */
 const char *http_arg(http_req *r, const char *key);

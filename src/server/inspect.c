@@ -28,6 +28,7 @@ typedef struct {
     /* ray */
     render_spec spec;
     arbor_render_params params;
+    arbor_tree *ready; /* the tree, when it was ready at once (ready_run) */
 } inspect_req;
 
 static cJSON *box_json(arbor_aabb b)
@@ -176,6 +177,23 @@ static void on_tree(void *user, arbor_tree *tree, const arbor_err *e)
     free(q);
 }
 
+/* The answer with a tree that was ready, on a worker: the box walk may
+ * visit every node of a large tree. */
+static void ready_run(void *ctx, uint32_t task)
+{
+    (void)task;
+    inspect_req *q = ctx;
+    answer(q, q->ready);
+    http_resume(q->http);
+}
+
+static void ready_free(void *ctx)
+{
+    inspect_req *q = ctx;
+    arbor_tree_release(q->ready);
+    free(q);
+}
+
 /* Answers q with the tree, now or once built. Takes q. */
 static void with_tree(inspect_req *q, arbor_model *m, arbor_accel_kind k, arbor_builder b)
 {
@@ -187,11 +205,12 @@ static void with_tree(inspect_req *q, arbor_model *m, arbor_accel_kind k, arbor_
     arbor_acquire got = arbor_store_acquire_tree(r->srv->store, m, k, b, &tree, on_tree, q, &err);
     if (got == ARBOR_ACQUIRE_PENDING)
         return;
-    if (got == ARBOR_ACQUIRE_READY)
-        answer(q, tree);
-    else
-        http_reply_err(r, &err);
-    arbor_tree_release(tree);
+    if (got == ARBOR_ACQUIRE_READY) {
+        q->ready = tree;
+        http_queue(r, ready_run, ready_free, q);
+        return;
+    }
+    http_reply_err(r, &err);
     free(q);
     http_resume(r);
 }

@@ -295,7 +295,8 @@ static cJSON *number_list(const char *text)
         char *end;
         /* decimal numbers only, as in a JSON body: strtod would also take
          * hex (0x40), inf and nan */
-        size_t digits = strspn(p, "+-.0123456789eE");
+        size_t digits = strspn(p, " \t"); /* as strtod skips them (a query's '+' is a space) */
+        digits += strspn(p + digits, "+-.0123456789eE");
         double d = strtod(p, &end);
         if (end > p + digits)
             end = (char *)p;

@@ -222,6 +222,29 @@ void http_resume(http_req *r)
     http_req_release(r);
 }
 
+void http_queue(http_req *r, void (*run)(void *ctx, uint32_t task), void (*release)(void *ctx), void *ctx)
+{
+    arbor_err e;
+    arbor_job *job = arbor_job_new(1, run, NULL, release, ctx, &e);
+    if (job == NULL) {
+        release(ctx);
+        http_reply_error(r, 507, "insufficient_memory", "out of memory");
+        http_resume(r);
+        return;
+    }
+    if (!arbor_pool_submit(r->srv->pool, job, &e)) {
+        http_reply_error(r, 503, "busy", "the daemon is shutting down");
+        http_resume(r);
+    }
+    arbor_job_release(job); /* releases ctx when the job could not be queued */
+}
+
+void http_on_pool(http_req *r, void (*run)(void *ctx, uint32_t task), void (*release)(void *ctx), void *ctx)
+{
+    http_suspend(r);
+    http_queue(r, run, release, ctx);
+}
+
 const char *http_arg(http_req *r, const char *key)
 {
     return MHD_lookup_connection_value(r->conn, MHD_GET_ARGUMENT_KIND, key);
@@ -238,7 +261,8 @@ static enum MHD_Result arg_known(void *cls, enum MHD_ValueKind kind, const char 
     (void)value;
     args_check *c = cls;
     size_t n = strlen(key);
-    for (const char *at = c->known; n > 0 && (at = strstr(at, key)) != NULL; at += n)
+    bool plain = n > 0 && strcspn(key, ", ") == n; /* a key holding a separator would match across two */
+    for (const char *at = c->known; plain && (at = strstr(at, key)) != NULL; at += n)
         if ((at == c->known || at[-1] == ' ') && (at[n] == ',' || at[n] == '\0'))
             return MHD_YES;
     c->unknown = key;
@@ -567,8 +591,10 @@ static void log_request(const arbor_server *s, const http_req *r, double ms)
         cJSON_AddNumberToObject(o, "bytes", (double)r->bytes);
         cJSON_AddNumberToObject(o, "ms", round(ms * 1000.0) / 1000.0);
         char *line = cJSON_PrintUnformatted(o);
-        if (line != NULL)
+        if (line != NULL) {
+            utf8_repair(line, strlen(line)); /* the path's bytes, as in answers */
             fprintf(stderr, "%s\n", line);
+        }
         free(line);
         cJSON_Delete(o);
         json_oom = false; /* the log's own failure; no answer is missing a part */

@@ -25,6 +25,7 @@
 
 #include "arbor/load.h"
 #include "arbor/sys.h"
+#include "folder.h"
 #include "http.h"
 
 /* Loads one request may wait for: GET /api/models loads new models one per
@@ -48,14 +49,12 @@ struct sync_load {
 
 typedef enum { SYNC_CURRENT, SYNC_LOAD, SYNC_GONE } sync_state;
 
-static const char *const model_exts[] = {".obj", ".ply", ".obj.gz", ".ply.gz"};
-#define NEXTS (sizeof model_exts / sizeof model_exts[0])
 
 /* The file of model `name` in the shared folder and its stamp, if any. */
 static bool folder_file(const arbor_server *s, const char *name, char *path, size_t cap, uint64_t *stamp)
 {
-    for (size_t i = 0; s->config.upload_dir != NULL && i < NEXTS; i++) {
-        snprintf(path, cap, "%s/%s%s", s->config.upload_dir, name, model_exts[i]);
+    for (size_t i = 0; s->config.upload_dir != NULL && i < FOLDER_NEXTS; i++) {
+        snprintf(path, cap, "%s/%s%s", s->config.upload_dir, name, folder_model_exts[i]);
         if ((*stamp = arbor_file_stamp(path)) != 0)
             return true;
     }
@@ -239,9 +238,9 @@ arbor_model *sync_model(http_req *r, const char *name)
 static bool entry_name(const char *file, char *name, size_t cap)
 {
     size_t n = strlen(file);
-    for (size_t i = NEXTS; i-- > 0;) {
-        size_t k = strlen(model_exts[i]);
-        if (file[0] != '.' && n > k && n - k < cap && strcmp(file + n - k, model_exts[i]) == 0) {
+    for (size_t i = FOLDER_NEXTS; i-- > 0;) {
+        size_t k = strlen(folder_model_exts[i]);
+        if (file[0] != '.' && n > k && n - k < cap && strcmp(file + n - k, folder_model_exts[i]) == 0) {
             memcpy(name, file, n - k);
             name[n - k] = '\0';
             return arbor_model_name_valid(name);

@@ -394,7 +394,7 @@ def test_abuse_disk_full_on_upload():
             r = d.req("PUT", "/api/models/second", body=big)
             expect_error(r, 507, "insufficient_storage")
             # the refused upload left nothing, its record included; the first keeps its record
-            eq(sorted(os.listdir(mnt)), [".first.upload", "cornell.obj", "first.obj"],
+            eq(sorted(os.listdir(mnt)), [".arbord.lock", ".first.upload", "cornell.obj", "first.obj"],
                "files in the full models folder")
             base.back("disk full on upload")
         finally:

@@ -5,7 +5,7 @@ import struct
 import threading
 import time
 
-from harness import (Daemon, check, eq, expect_error, expect_json, expect_ok, fail, limits_daemon, multipart,
+from harness import (Daemon, check, eq, expect_error, expect_json, expect_ok, fail, limits_daemon, multipart, parallel,
                      our, png_of, shared, test)
 
 CUBE_OBJ = b"""# a unit cube of quads: 8 vertices, 6 faces, 12 triangles
@@ -384,3 +384,60 @@ def test_upload_one_model_file():
     check("sphere.obj" in e["message"], "400 does not name the second file: %r" % e["message"])
     eq(_folder(d), folder, "the models folder after a refused upload")
     eq(d.model("sphere")["triangles"], 5120, "sphere after the refused upload")
+
+
+@test
+def test_shared_mtl_stays_while_an_upload_uses_it():
+    """Two uploads send one .mtl with the same bytes: deleting the one that wrote it keeps it for the
+    other, whose materials still load."""
+    d = upload_daemon()
+    mtl = b"newmtl teal\nKd 0 0.5 0.5\n"
+    for name in ("share-a", "share-b"):
+        body, ctype = multipart([("model", name + ".obj", "model/obj", b"mtllib shared-lib.mtl\nusemtl teal\n" + TETRA_OBJ),
+                                 ("mtl", "shared-lib.mtl", "text/plain", mtl)])
+        j = expect_json(d.req("POST", "/api/models/" + name, body=body, headers={"Content-Type": ctype}), 201)
+        check("teal" in j["materials"], "%s materials %r" % (name, j["materials"]))
+    expect_json(d.req("DELETE", "/api/models/share-a"))
+    check(os.path.exists(os.path.join(d.models_dir, "shared-lib.mtl")),
+          "deleting share-a removed shared-lib.mtl, which share-b uses")
+    d2 = Daemon(args=["--threads", "1", "--prebuild", "none"], models_dir=d.models_dir, name="restarted daemon")
+    try:
+        j = d2.model("share-b")
+        check("teal" in j["materials"] and not j.get("warnings"), "share-b after a restart: %r" % j)
+        d2.stop_clean()
+    finally:
+        d2.cleanup()
+    expect_json(d.req("DELETE", "/api/models/share-b"))
+
+
+@test
+def test_delete_keeps_a_file_the_operator_put_in_an_uploads_place():
+    """The operator removes an uploaded model's file and puts their own of that name there: the upload's
+    record is stale, and DELETE keeps the operator's file."""
+    d = upload_daemon()
+    expect_json(put(d, "swapped", TETRA_OBJ), 201)
+    path = os.path.join(d.models_dir, "swapped.obj")
+    os.unlink(path)
+    expect_error(d.get("/api/models/swapped"), 404, "not_found")
+    with open(path, "wb") as f:
+        f.write(CUBE_OBJ)
+    eq(d.model("swapped")["triangles"], 12, "the operator's swapped.obj")
+    expect_json(d.req("DELETE", "/api/models/swapped"))
+    check(os.path.exists(path), "DELETE removed the operator's swapped.obj (a stale record named it)")
+    os.unlink(path)
+
+
+@test
+def test_uploads_of_one_new_name_at_once():
+    """Eight uploads of one new name at once: one is 201, the rest 409, and the model and its file stay."""
+    d = upload_daemon()
+    res = parallel(8, lambda i: put(d, "racer", TETRA_OBJ if i % 2 else CUBE_OBJ))
+    bad = [r for r in res if isinstance(r, Exception)]
+    check(not bad, "uploads failed: %r" % bad)
+    eq(sorted(r.status for r in res), [201] + [409] * 7, "statuses of eight uploads of one new name")
+    won = [r for r in res if r.status == 201][0].json()
+    eq(d.model("racer")["triangles"], won["triangles"], "the model is the one that got 201")
+    check(os.path.exists(os.path.join(d.models_dir, "racer.obj")), "racer.obj gone after the race")
+    expect_json(d.req("DELETE", "/api/models/racer"))
+    check(not any(f.startswith("racer") or f.startswith(".racer") for f in os.listdir(d.models_dir)),
+          "files of racer left after DELETE: %r" % _folder(d))

@@ -1,0 +1,55 @@
+/*
+ * folder.h - what uploads write into the shared models folder, and what
+ * DELETE may remove from it (folder.c). Private to src/server/; it knows
+ * files, not HTTP.
+ *
+ * Several daemons may share the folder (docs/SCALE.md), and the operator
+ * puts models there too. An upload of NAME records in ".NAME.upload" the
+ * files it wrote, each with its identity (arbor_file_stamp) as written, and
+ * the files already there that it uses (a material library with the same
+ * bytes). DELETE removes only files the record says NAME's upload wrote and
+ * that are still those files, and none that another record names: a file
+ * the operator put in the folder, or replaced since, is never removed, and
+ * no upload writes over a file that is not its own.
+ *
+ * Every change to the folder happens under its lock (folder_lock_take), an
+ * flock(2) on ".arbord.lock" in it, which serialises uploads and deletes
+ * of every thread and every daemon on the machine.
+ */
+#ifndef ARBOR_SERVER_FOLDER_H
+#define ARBOR_SERVER_FOLDER_H
+
+#include <stdbool.h>
+#include <stddef.h>
+
+#define FOLDER_NEXTS 4
+/* A model file's extensions, the compressed ones after the plain. */
+extern const char *const folder_model_exts[FOLDER_NEXTS];
+
+/* Whether a file name is a model file's: one of folder_model_exts, in any
+ * case. */
+bool folder_is_model_file(const char *file);
+
+/* Takes the folder's lock, waiting for it; false (err set) when the lock
+ * file cannot be opened. Returns the descriptor to give folder_lock_drop. */
+bool folder_lock_take(const char *dir, int *fd, char *err, size_t errcap);
+void folder_lock_drop(int fd);
+
+typedef enum { FOLDER_SAVED, FOLDER_CONFLICT, FOLDER_FAILED } folder_result;
+
+/* Saves an upload of model `name` from stage (a folder of its parts: the
+ * file `model`, then material libraries) into dir, with the lock held: the
+ * model as NAME.EXT (NAME's files of the other extensions removed), each
+ * material library under its own name, and the record. A material library
+ * that would overwrite a file of another content that NAME's record does
+ * not own is FOLDER_CONFLICT, and nothing is written. On FOLDER_SAVED
+ * *file is the model's path. err says what went wrong otherwise. */
+folder_result folder_save_upload(const char *dir, const char *name, const char *stage, const char *model, char *file,
+                                 size_t cap, char *err, size_t errcap);
+
+/* Removes, with the lock held, the files an upload of `name` wrote that no
+ * other record names, and its record. A model the operator put in the
+ * folder has no record and keeps its files. */
+void folder_remove_upload(const char *dir, const char *name);
+
+#endif
