@@ -406,7 +406,8 @@ typedef struct {
 } delete_job;
 
 /* Unloads the model and removes what its upload wrote, with the folder's
- * lock held (folder.h). */
+ * lock held (folder.h). A folder whose lock cannot be made (read-only)
+ * holds no upload's files to remove, and its models are only unloaded. */
 static void delete_run(void *ctx, uint32_t task)
 {
     (void)task;
@@ -416,22 +417,21 @@ static void delete_run(void *ctx, uint32_t task)
     char why[PATH_MAX + 128];
     arbor_err err;
     int lock = -1;
-    if (dir != NULL && !folder_lock_take(dir, &lock, why, sizeof why)) {
-        http_reply_error(r, 507, "insufficient_storage", "%s", why);
-    } else if (!arbor_store_remove_model(r->srv->store, j->name, &err)) {
+    bool locked = dir != NULL && folder_lock_take(dir, &lock, why, sizeof why);
+    if (!arbor_store_remove_model(r->srv->store, j->name, &err)) {
         http_reply_err(r, &err);
     } else {
         /* An uploaded model's files go with it, or the next start would load
          * it again, and so would the other daemons sharing the folder
          * (sync.c); a model the operator put in the folder keeps its file
          * (and is loaded again by the next request for it). */
-        if (dir != NULL)
+        if (locked)
             folder_remove_upload(dir, j->name);
         cJSON *o = cJSON_CreateObject();
         cJSON_AddStringToObject(o, "deleted", j->name);
         http_reply_json(r, 200, o);
     }
-    if (lock >= 0)
+    if (locked)
         folder_lock_drop(lock);
     http_resume(r);
 }

@@ -402,3 +402,32 @@ def test_abuse_disk_full_on_upload():
     finally:
         subprocess.run(["umount", mnt])
         os.rmdir(mnt)
+
+
+@test
+def test_abuse_read_only_models_folder():
+    """--models on a read-only mount: DELETE unloads a model (its file stays, and the next request loads it
+    again), and an upload is a clear 507, not a hang or a crash."""
+    if os.geteuid() != 0:
+        ignore("needs root to mount a tmpfs")
+    mnt = tempfile.mkdtemp(prefix="arbor-ro-")
+    p = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", mnt], capture_output=True)
+    if p.returncode != 0:
+        os.rmdir(mnt)
+        ignore("cannot mount a tmpfs: %s" % p.stderr.decode().strip())
+    try:
+        with open(our("cornell.obj"), "rb") as f, open(os.path.join(mnt, "cornell.obj"), "wb") as out:
+            out.write(f.read())
+        subprocess.run(["mount", "-o", "remount,ro", mnt], check=True)
+        d = Daemon(models_dir=mnt, args=["--threads", "2"], name="read-only folder daemon")
+        try:
+            eq(expect_json(d.req("DELETE", "/api/models/cornell")), {"deleted": "cornell"}, "DELETE on a read-only folder")
+            eq(sorted(os.listdir(mnt)), ["cornell.obj"], "files in the read-only folder")
+            eq(d.model("cornell")["triangles"], 36, "cornell loaded again")
+            expect_error(d.req("PUT", "/api/models/new", body=b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"), 507,
+                         "insufficient_storage")
+        finally:
+            d.stop_clean()
+    finally:
+        subprocess.run(["umount", mnt])
+        os.rmdir(mnt)
