@@ -132,11 +132,6 @@ export function treeStats(model, accel, builder) {
     });
 }
 
-export const buildTree = (model, accel, builder) =>
-    postJSON(`Building the ${accel} ${builder} tree of ${model}`, `/api/models/${enc(model)}/trees`, {
-        accel, builder, wait: true,
-    }, true);
-
 export function treeBoxes(model, accel, builder, depth, kind) {
     let q = `depth=${depth}`;
     if (kind === 'leaves') q += '&leaves=1';

@@ -308,28 +308,15 @@ export class Pane {
                 this.badgeBuilding.hidden = true;
             }
         };
-        const build = async () => {
-            try {
-                return await api.buildTree(name, t.accel, t.builder);
-            } catch (e) {
-                // changes refused (--token-file without the token, or a non-loopback bind):
-                // GET /api/stats builds the tree too, and is open
-                if (e.status === 401 || e.status === 403) return api.treeStats(name, t.accel, t.builder);
-                throw e;
-            }
-        };
-        build().then((s) => {
+        // GET /api/stats of one tree builds it if absent and answers once it is
+        // built; it is open where POST .../trees needs a token (--token-file)
+        api.treeStats(name, t.accel, t.builder).then((s) => {
             this.buildDoneKeys.add(key);
             if (this.statsKey === key) this.stats = s;
             app.refreshModel(name);
         }, (e) => {
             if (this.statsKey === key) this.stats = { error: e.words };
-            if (e.status === 404 || e.status === 405) {
-                // no tree endpoint: a frame builds the tree itself
-                this.buildDoneKeys.add(key);
-            } else {
-                app.notify(e.words, 'error');
-            }
+            app.notify(e.words, 'error');
         }).finally(() => {
             finish();
             app.panesChanged();
