@@ -9,6 +9,7 @@ and, after it, that nothing loaded was lost (GET /api/models: the same names and
 that the daemon's open file descriptors come back to where they were (+2 at most: an epoll or
 eventfd MHD may open lazily) and its RSS to within 10% + 8 MiB of where it was (allocator caches).
 """
+import contextlib
 import os
 import resource
 import select
@@ -368,18 +369,28 @@ def test_abuse_uploads_cut_off_halfway():
         d.stop_clean()
 
 
-@test
-def test_abuse_disk_full_on_upload():
-    """--models on a 256 KiB tmpfs: an upload that does not fit is 507 insufficient_storage, leaves no
-    partial file, and the daemon goes on."""
+@contextlib.contextmanager
+def tmpfs(size, prefix):
+    """A tmpfs of `size` mounted on a fresh folder for the block (the test is ignored without root)."""
     if os.geteuid() != 0:
-        ignore("needs root to mount a small tmpfs")
-    mnt = tempfile.mkdtemp(prefix="arbor-full-")
-    p = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", mnt], capture_output=True)
+        ignore("needs root to mount a tmpfs")
+    mnt = tempfile.mkdtemp(prefix=prefix)
+    p = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=" + size, "tmpfs", mnt], capture_output=True)
     if p.returncode != 0:
         os.rmdir(mnt)
         ignore("cannot mount a tmpfs: %s" % p.stderr.decode().strip())
     try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", mnt])
+        os.rmdir(mnt)
+
+
+@test
+def test_abuse_disk_full_on_upload():
+    """--models on a 256 KiB tmpfs: an upload that does not fit is 507 insufficient_storage, leaves no
+    partial file, and the daemon goes on."""
+    with tmpfs("256k", "arbor-full-") as mnt:
         with open(our("cornell.obj"), "rb") as f:
             small = f.read()
         with open(our("sphere.obj"), "rb") as f:
@@ -399,23 +410,13 @@ def test_abuse_disk_full_on_upload():
             base.back("disk full on upload")
         finally:
             d.stop_clean()
-    finally:
-        subprocess.run(["umount", mnt])
-        os.rmdir(mnt)
 
 
 @test
 def test_abuse_read_only_models_folder():
     """--models on a read-only mount: DELETE unloads a model (its file stays, and the next request loads it
     again), and an upload is a clear 507, not a hang or a crash."""
-    if os.geteuid() != 0:
-        ignore("needs root to mount a tmpfs")
-    mnt = tempfile.mkdtemp(prefix="arbor-ro-")
-    p = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", mnt], capture_output=True)
-    if p.returncode != 0:
-        os.rmdir(mnt)
-        ignore("cannot mount a tmpfs: %s" % p.stderr.decode().strip())
-    try:
+    with tmpfs("1m", "arbor-ro-") as mnt:
         with open(our("cornell.obj"), "rb") as f, open(os.path.join(mnt, "cornell.obj"), "wb") as out:
             out.write(f.read())
         subprocess.run(["mount", "-o", "remount,ro", mnt], check=True)
@@ -428,6 +429,3 @@ def test_abuse_read_only_models_folder():
                          "insufficient_storage")
         finally:
             d.stop_clean()
-    finally:
-        subprocess.run(["umount", mnt])
-        os.rmdir(mnt)
