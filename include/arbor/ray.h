@@ -34,6 +34,20 @@ typedef struct {
     uint32_t tri;
 } arbor_hit;
 
+/* The sizes of a model (its box's diagonal) for which the test stays exact
+ * when rays come from a camera a few sizes away: its t is a quotient of
+ * products of three coordinate differences, which past 2^40 overflow (rays
+ * then miss every triangle) and below 2^-40 fall among float's subnormals
+ * and lose bits. Loaders warn of a model outside them; the benchmark
+ * refuses a scale that takes a model out. */
+#define ARBOR_SIZE_MIN 0x1p-40f
+#define ARBOR_SIZE_MAX 0x1p40f
+
+static inline bool arbor_size_traceable(float diagonal)
+{
+    return diagonal >= ARBOR_SIZE_MIN && diagonal <= ARBOR_SIZE_MAX;
+}
+
 /* Per-ray constants of the watertight test. */
 typedef struct {
     int kx, ky, kz;      /* axis permutation: kz is the dominant direction axis */

@@ -9,6 +9,8 @@
 #define ARBOR_VEC_H
 
 #include <math.h>
+#include <stdint.h>
+#include <string.h>
 
 typedef struct { float x, y, z; } arbor_vec3;
 
@@ -25,7 +27,29 @@ static inline arbor_vec3 vec3_cross(arbor_vec3 a, arbor_vec3 b)
     return vec3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
 }
 static inline float vec3_length(arbor_vec3 a) { return sqrtf(vec3_dot(a, a)); }
-static inline arbor_vec3 vec3_normalize(arbor_vec3 a) { return vec3_scale(a, 1.0f / vec3_length(a)); }
+/* a / |a|. a is first scaled by the power of two that brings its largest
+ * component into [1, 2), so that |a|^2 neither overflows nor underflows:
+ * the cross products of edges of huge or tiny triangles (a model at 1e13
+ * or 1e-13) normalise too. Scaling by a power of two is exact for every
+ * component that stays a normal float, so the result is rounded as the
+ * plain formula's wherever that one works. A largest component that is
+ * zero, subnormal, not finite or 2^127 and more is left to the plain
+ * formula. */
+static inline arbor_vec3 vec3_normalize(arbor_vec3 a)
+{
+    float big = fabsf(a.x) > fabsf(a.y) ? fabsf(a.x) : fabsf(a.y);
+    big = big > fabsf(a.z) ? big : fabsf(a.z);
+    uint32_t bits;
+    memcpy(&bits, &big, sizeof bits);
+    uint32_t biased = bits >> 23; /* big is not negative: its exponent, biased by 127 */
+    if (biased > 0 && biased < 254) {
+        uint32_t inverse = (254 - biased) << 23; /* 2^(127 - biased): 1 / big's power of two */
+        float down;
+        memcpy(&down, &inverse, sizeof down);
+        a = vec3_scale(a, down);
+    }
+    return vec3_scale(a, 1.0f / vec3_length(a));
+}
 /* Compare-and-select rather than fminf/fmaxf: those are libm calls unless
  * NaNs are ruled out at compile time, and these run in builders' inner loops.
  * Coordinates are never NaN (the loaders reject them). */

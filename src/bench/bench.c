@@ -88,6 +88,12 @@ bool arbor_bench_scale_mesh(arbor_mesh *m, float scale, arbor_err *e)
                                   "vertex %u: coordinate %.9g times scale %.9g leaves float's normal range", i + 1,
                                   (double)c[k], (double)scale);
     }
+    float size = vec3_length(vec3_sub(m->bounds.hi, m->bounds.lo)) * scale;
+    if (!arbor_size_traceable(size))
+        return arbor_fail(e, ARBOR_ERR_INVALID,
+                          "scale %.9g makes the model %.3g across, outside %.3g..%.3g where single-precision ray "
+                          "tests stay exact",
+                          (double)scale, (double)size, (double)ARBOR_SIZE_MIN, (double)ARBOR_SIZE_MAX);
     for (uint32_t i = 0; i < m->nverts; i++)
         m->verts[i] = vec3_scale(m->verts[i], scale);
     m->bounds.lo = vec3_scale(m->bounds.lo, scale);

@@ -47,7 +47,8 @@ static void usage(FILE *out)
             "                    box lost to rounding, no shortcut at triangle edges), the\n"
             "                    Embree nearest to arbor's exactness; its row's builder is \"robust\"\n"
             "  --scale F         measure each model scaled by F, a power of two (1024, 1/1024,\n"
-            "                    0.0009765625): exact, so hits and distances (times F) stay the same\n"
+            "                    0.0009765625): exact, so hits and distances (times F) stay the same;\n"
+            "                    refused where the model would be over 2^40 or under 2^-40 across\n"
             "  --parse           instead: time the OBJ parser on each model's text in memory\n",
             ARBOR_BENCH_MAX_RUNS);
 }

@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "arbor/mesh.h"
+#include "arbor/ray.h"
 
 void arbor_mesh_init(arbor_mesh *m)
 {
@@ -183,6 +184,11 @@ bool arbor_mesh_finish(arbor_mesh *m, arbor_err *e)
         }
     }
     m->bounds = b;
+    float size = vec3_length(vec3_sub(b.hi, b.lo));
+    if (m->ntris > 0 && !arbor_size_traceable(size))
+        arbor_mesh_warn(m, "the model's size (its box's diagonal) is %.3g, outside %.3g..%.3g where single-precision "
+                           "ray tests stay exact: rays may miss its triangles (scale it into that range)",
+                        (double)size, (double)ARBOR_SIZE_MIN, (double)ARBOR_SIZE_MAX);
     return true;
 }
 

@@ -217,6 +217,22 @@ EOF
         diff "$tmp/want.sources" "$tmp/got.sources" >&2
 }
 
+# A model too large (or small) for single-precision ray tests is warned of;
+# bench refuses a --scale that makes one (every ray would miss, silently).
+sizes_out_of_range_are_said() {
+    printf 'v 0 0 0\nv 1e13 0 0\nv 0 1e13 0\nf 1 2 3\n' > "$tmp/huge.obj"
+    "$arbord" stats --model "$tmp/huge.obj" --builder sah 2>"$tmp/huge.err" >/dev/null || fail "stats of huge.obj failed"
+    grep -q "outside .* where single-precision ray tests stay exact" "$tmp/huge.err" ||
+        fail "no warning for a model 1.4e13 across: $(cat "$tmp/huge.err")"
+    "$arbord" stats --model "$model" --builder sah 2>"$tmp/cornell.err" >/dev/null || fail "stats of cornell failed"
+    ! grep -q "single-precision" "$tmp/cornell.err" || fail "cornell warned of: $(cat "$tmp/cornell.err")"
+    local rc=0
+    "$arbord" bench --model "$model" --accel bvh --builder sah --runs 1 --scale 17592186044416 \
+        >"$tmp/scaled.out" 2>"$tmp/scaled.err" || rc=$?
+    [ "$rc" -ne 0 ] || fail "bench --scale 2^44 exited 0: $(cat "$tmp/scaled.out")"
+    grep -q "single-precision" "$tmp/scaled.err" || fail "bench --scale 2^44 said: $(cat "$tmp/scaled.err")"
+}
+
 [ -x "$arbord" ] || { echo "tests/cli/run.sh: no arbord at $arbord (set ARBORD)"; echo "1 Tests 1 Failures 0 Ignored"; exit 1; }
 check output_errors_fail output_errors_fail
 check render_refuses_other_extensions render_refuses_other_extensions
@@ -228,6 +244,7 @@ check embree_isa_is_checked_and_reported embree_isa_is_checked_and_reported
 check embree_robust_row embree_robust_row
 check bench_tables_read_bench_output bench_tables_read_bench_output
 check deps_reads_both_apt_formats deps_reads_both_apt_formats
+check sizes_out_of_range_are_said sizes_out_of_range_are_said
 echo
 echo "-----------------------"
 echo "$tests Tests $failures Failures 0 Ignored"

@@ -272,6 +272,15 @@ static void test_bad_options_are_refused(void)
         TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
         TEST_ASSERT_NOT_NULL(strstr(e.msg, "power of two"));
     }
+    /* powers of two that take the mesh where every ray would miss */
+    const float far_scales[] = {0x1p50f, 0x1p-50f};
+    for (size_t i = 0; i < sizeof far_scales / sizeof far_scales[0]; i++) {
+        arbor_bench_opts_init(&o);
+        o.scale = far_scales[i];
+        TEST_ASSERT_FALSE(arbor_bench_mesh("m", &mesh, &o, rows, &e));
+        TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
+        TEST_ASSERT_NOT_NULL(strstr(e.msg, "single-precision"));
+    }
 
     arbor_bench_opts_init(&o);
     o.embree = true;

@@ -94,6 +94,24 @@ static void test_shared_edge_and_vertex(void)
     TEST_ASSERT_EQUAL_INT(0, misses);
 }
 
+/* A vector normalises to the same bits at every power-of-two scale, far
+ * past where its squared length leaves float's range (the normals of a
+ * model 1e13 or 1e-13 across); the model sizes the test is exact for are
+ * the documented ones. */
+static void test_normalize_at_every_scale(void)
+{
+    arbor_vec3 unit = vec3_normalize(vec3(3.0f, -4.0f, 12.0f));
+    TEST_ASSERT_FLOAT_WITHIN(1e-7f, 3.0f / 13.0f, unit.x);
+    for (int e = -100; e <= 100; e += 5) {
+        arbor_vec3 n = vec3_normalize(vec3(ldexpf(3.0f, e), ldexpf(-4.0f, e), ldexpf(12.0f, e)));
+        TEST_ASSERT_EQUAL_MEMORY_MESSAGE(&unit, &n, sizeof n, "scale 2^e");
+    }
+    TEST_ASSERT_TRUE(arbor_size_traceable(1.0f) && arbor_size_traceable(ARBOR_SIZE_MAX) &&
+                     arbor_size_traceable(ARBOR_SIZE_MIN));
+    TEST_ASSERT_FALSE(arbor_size_traceable(ARBOR_SIZE_MAX * 2.0f) || arbor_size_traceable(ARBOR_SIZE_MIN / 2.0f) ||
+                      arbor_size_traceable(INFINITY));
+}
+
 int main(void)
 {
     UNITY_BEGIN();
@@ -101,5 +119,6 @@ int main(void)
     RUN_TEST(test_misses);
     RUN_TEST(test_interval);
     RUN_TEST(test_shared_edge_and_vertex);
+    RUN_TEST(test_normalize_at_every_scale);
     return UNITY_END();
 }
