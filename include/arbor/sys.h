@@ -1,6 +1,7 @@
 /*
  * sys.h - the few operating-system services arbor's modules share: a
- * monotonic clock, the core count, the identity of a file and mapping fresh memory in advance.
+ * monotonic clock, the core count, the identity of a file, mapping fresh memory in advance, and
+ * text made valid UTF-8.
  * Threads come from the pool (pool.h), never from here.
  */
 #ifndef ARBOR_SYS_H
@@ -27,5 +28,11 @@ uint64_t arbor_file_stamp(const char *path);
  * allocations: a kernel without MADV_POPULATE_WRITE (Linux before 5.14)
  * leaves the faults as they were, and the memory is the same either way. */
 void arbor_prefault(void *p, size_t bytes);
+
+/* Replaces each byte of text[0, len) that is not part of well-formed UTF-8
+ * (RFC 3629) by '?'. Names from requests and file systems reach JSON byte
+ * for byte, and JSON is UTF-8; JSON outside its strings is ASCII, so on a
+ * JSON text only strings change. */
+void arbor_utf8_repair(char *text, size_t len);
 
 #endif

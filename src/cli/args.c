@@ -3,7 +3,9 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 
+#include "arbor/sys.h"
 #include "cli.h"
 
 const char *cli_value(const char *cmd, int argc, char **argv, int *i)
@@ -29,8 +31,10 @@ bool cli_once(const char *cmd, const char *opt, const char **slot, const char *v
 bool cli_print_json(cJSON *o)
 {
     char *text = o != NULL ? cJSON_PrintUnformatted(o) : NULL;
-    if (text != NULL)
+    if (text != NULL) {
+        arbor_utf8_repair(text, strlen(text)); /* a model's file name may be any bytes */
         puts(text);
+    }
     free(text);
     cJSON_Delete(o);
     return text != NULL;

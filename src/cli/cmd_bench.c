@@ -81,30 +81,48 @@ static void check_hits(const arbor_bench_row *rows, size_t n)
     }
 }
 
-/* Loads the model and measures it into rows (arbor_bench_row_count(o) of them). */
-static bool bench_model(const arbor_bench_opts *o, const char *path, arbor_bench_row *rows, arbor_err *e)
+/* Loads the model and measures it into rows (arbor_bench_row_count(o) of
+ * them); says why not when it cannot. */
+static bool bench_model(const arbor_bench_opts *o, const char *path, arbor_bench_row *rows)
 {
     const char *model = base_name(path);
     arbor_mesh mesh;
+    arbor_err e;
     fprintf(stderr, "bench: %s: load\n", model);
-    if (!arbor_load_model(path, &mesh, e))
+    if (!arbor_load_model(path, &mesh, &e)) {
+        fprintf(stderr, "arbord bench: %s\n", e.msg); /* it names the file */
         return false;
+    }
     fprintf(stderr, "bench: %s: %u triangles, scale %.17g, kernel %s\n", model, mesh.ntris, (double)o->scale,
             arbor_accel_kernel_name());
-    bool ok = arbor_bench_mesh(model, &mesh, o, rows, e);
+    bool ok = arbor_bench_mesh(model, &mesh, o, rows, &e);
     if (ok)
         check_hits(rows, arbor_bench_row_count(o));
+    else
+        fprintf(stderr, "arbord bench: %s: %s\n", path, e.msg);
     arbor_mesh_free(&mesh);
     return ok;
 }
 
 /* ---- output ---- */
 
-/* Prints one cell of a table row: csv cells are comma-separated, md cells
- * framed by "| ". */
+/* Prints one cell of a table row: csv cells are comma-separated, quoted
+ * when they hold a comma, a quote or a line break (RFC 4180: a quote
+ * doubled); md cells framed by "| ", a '|' in them escaped. A model's file
+ * name may hold any of these. */
 static void put_cell(bool csv, bool first, const char *text)
 {
-    printf("%s%s", first ? (csv ? "" : "| ") : (csv ? "," : " | "), text);
+    fputs(first ? (csv ? "" : "| ") : (csv ? "," : " | "), stdout);
+    bool quote = csv && strpbrk(text, ",\"\r\n") != NULL;
+    if (quote)
+        putchar('"');
+    for (const char *c = text; *c != '\0'; c++) {
+        if ((quote && *c == '"') || (!csv && *c == '|'))
+            putchar(csv ? '"' : '\\');
+        putchar(*c);
+    }
+    if (quote)
+        putchar('"');
 }
 
 /* A number cell, "-" when not applicable. */
@@ -368,12 +386,16 @@ int cmd_bench(int argc, char **argv)
         fprintf(stderr, "arbord bench: out of memory for the results\n");
         status = 1;
     }
-    for (int i = 0; i < a.nmodels && status == 0; i++)
-        if (!bench_model(&a.opts, a.models[i], rows + (size_t)i * per_model, &err)) {
-            fprintf(stderr, "arbord bench: %s: %s\n", a.models[i], err.msg);
+    /* a model that fails is said and skipped: the others' rows are printed,
+     * and the exit status says one failed */
+    size_t measured = 0;
+    for (int i = 0; i < a.nmodels && rows != NULL; i++) {
+        if (bench_model(&a.opts, a.models[i], rows + measured * per_model))
+            measured++;
+        else
             status = 1;
-        }
-    if (status == 0 && !print_rows(&a, rows, (size_t)a.nmodels * per_model)) {
+    }
+    if (measured > 0 && !print_rows(&a, rows, measured * per_model)) {
         fprintf(stderr, "arbord bench: out of memory\n");
         status = 1;
     }

@@ -1,5 +1,5 @@
-/* sys.c - clock, core count, file identity and prefaulting (see
- * include/arbor/sys.h). */
+/* sys.c - clock, core count, file identity, prefaulting and UTF-8 repair
+ * (see include/arbor/sys.h). */
 #define _DEFAULT_SOURCE /* madvise */
 #include <sys/mman.h>
 #include <sys/stat.h>
@@ -52,4 +52,38 @@ void arbor_prefault(void *p, size_t bytes)
     (void)p;
     (void)bytes;
 #endif
+}
+
+/* The length of the well-formed UTF-8 sequence at s (of n bytes), or 0:
+ * RFC 3629's table, so no overlong form, surrogate or code point past
+ * U+10FFFF passes. */
+static size_t utf8_sequence(const unsigned char *s, size_t n)
+{
+    unsigned char c = s[0];
+    if (c < 0x80)
+        return 1;
+    size_t len = c >= 0xC2 && c <= 0xDF ? 2 : c >= 0xE0 && c <= 0xEF ? 3 : c >= 0xF0 && c <= 0xF4 ? 4 : 0;
+    if (len == 0 || len > n)
+        return 0;
+    unsigned char lo = c == 0xE0 ? 0xA0 : c == 0xF0 ? 0x90 : 0x80;
+    unsigned char hi = c == 0xED ? 0x9F : c == 0xF4 ? 0x8F : 0xBF;
+    if (s[1] < lo || s[1] > hi)
+        return 0;
+    for (size_t i = 2; i < len; i++)
+        if (s[i] < 0x80 || s[i] > 0xBF)
+            return 0;
+    return len;
+}
+
+void arbor_utf8_repair(char *text, size_t len)
+{
+    unsigned char *s = (unsigned char *)text;
+    for (size_t i = 0; i < len;) {
+        size_t k = utf8_sequence(s + i, len - i);
+        if (k == 0) {
+            s[i] = '?';
+            k = 1;
+        }
+        i += k;
+    }
 }

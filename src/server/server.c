@@ -88,44 +88,6 @@ void http_reply_buffer(http_req *r, unsigned status, const char *content_type, v
     reply_response(r, status, resp, len);
 }
 
-/* The length of the well-formed UTF-8 sequence at s (of n bytes), or 0:
- * RFC 3629's table, so no overlong form, surrogate or code point past
- * U+10FFFF passes. */
-static size_t utf8_sequence(const unsigned char *s, size_t n)
-{
-    unsigned char c = s[0];
-    if (c < 0x80)
-        return 1;
-    size_t len = c >= 0xC2 && c <= 0xDF ? 2 : c >= 0xE0 && c <= 0xEF ? 3 : c >= 0xF0 && c <= 0xF4 ? 4 : 0;
-    if (len == 0 || len > n)
-        return 0;
-    unsigned char lo = c == 0xE0 ? 0xA0 : c == 0xF0 ? 0x90 : 0x80;
-    unsigned char hi = c == 0xED ? 0x9F : c == 0xF4 ? 0x8F : 0xBF;
-    if (s[1] < lo || s[1] > hi)
-        return 0;
-    for (size_t i = 2; i < len; i++)
-        if (s[i] < 0x80 || s[i] > 0xBF)
-            return 0;
-    return len;
-}
-
-/* Replaces each byte of text that is not part of well-formed UTF-8 by '?'.
- * Strings from requests and files (a URL's %ff, a material name in Latin-1)
- * reach JSON bodies byte for byte, and JSON is UTF-8; outside strings JSON
- * is ASCII, so only strings change. */
-static void utf8_repair(char *text, size_t len)
-{
-    unsigned char *s = (unsigned char *)text;
-    for (size_t i = 0; i < len;) {
-        size_t k = utf8_sequence(s + i, len - i);
-        if (k == 0) {
-            s[i] = '?';
-            k = 1;
-        }
-        i += k;
-    }
-}
-
 void http_reply_json(http_req *r, unsigned status, cJSON *body)
 {
     char *text = body != NULL && !json_oom ? cJSON_PrintUnformatted(body) : NULL;
@@ -140,7 +102,7 @@ void http_reply_json(http_req *r, unsigned status, cJSON *body)
         return;
     }
     size_t len = strlen(text);
-    utf8_repair(text, len);
+    arbor_utf8_repair(text, len); /* a URL's %ff, a material name in Latin-1 */
     /* A newline ends the body, so curl's output ends a line. */
     char *line = realloc(text, len + 2);
     if (line != NULL) {
@@ -592,7 +554,7 @@ static void log_request(const arbor_server *s, const http_req *r, double ms)
         cJSON_AddNumberToObject(o, "ms", round(ms * 1000.0) / 1000.0);
         char *line = cJSON_PrintUnformatted(o);
         if (line != NULL) {
-            utf8_repair(line, strlen(line)); /* the path's bytes, as in answers */
+            arbor_utf8_repair(line, strlen(line)); /* the path's bytes, as in answers */
             fprintf(stderr, "%s\n", line);
         }
         free(line);

@@ -233,6 +233,35 @@ sizes_out_of_range_are_said() {
     grep -q "single-precision" "$tmp/scaled.err" || fail "bench --scale 2^44 said: $(cat "$tmp/scaled.err")"
 }
 
+# A model's file name may hold any bytes: JSON stays UTF-8, CSV stays one
+# cell per field.
+odd_names_stay_machine_readable() {
+    local odd
+    odd="$tmp/$(printf 'a,b"c\377')".obj
+    cp "$model" "$odd"
+    "$arbord" stats --model "$odd" --builder sah --json 2>/dev/null > "$tmp/odd.json" || fail "stats --json failed"
+    "$arbord" bench --model "$odd" --accel bvh --builder sah --runs 1 --format csv 2>/dev/null > "$tmp/odd.csv" ||
+        fail "bench --format csv failed"
+    python3 - "$tmp/odd.json" "$tmp/odd.csv" <<'EOF'
+import csv, json, sys
+rows = [json.loads(l) for l in open(sys.argv[1], encoding="utf-8", errors="strict") if l.strip()]
+assert rows and all("a,b\"c?" in r["model"] for r in rows), rows
+table = list(csv.reader(open(sys.argv[2], encoding="utf-8", errors="replace")))
+assert len(table) == 2 and len(table[1]) == len(table[0]) and table[1][0].startswith('a,b"c'), table
+EOF
+}
+
+# A model that cannot be loaded among several: said, the others measured and
+# printed, exit 1.
+bench_reports_the_models_it_could() {
+    local rc=0
+    "$arbord" bench --model "$tmp/no-such.obj" --model "$model" --accel bvh --builder sah --runs 1 --format csv \
+        >"$tmp/some.csv" 2>"$tmp/some.err" || rc=$?
+    [ "$rc" -eq 1 ] || fail "exit $rc, expected 1"
+    grep -q "no-such.obj" "$tmp/some.err" || fail "the failing model is not named: $(cat "$tmp/some.err")"
+    [ "$(grep -c '^cornell.obj,' "$tmp/some.csv")" -eq 1 ] || fail "cornell's row missing: $(cat "$tmp/some.csv")"
+}
+
 [ -x "$arbord" ] || { echo "tests/cli/run.sh: no arbord at $arbord (set ARBORD)"; echo "1 Tests 1 Failures 0 Ignored"; exit 1; }
 check output_errors_fail output_errors_fail
 check render_refuses_other_extensions render_refuses_other_extensions
@@ -245,6 +274,8 @@ check embree_robust_row embree_robust_row
 check bench_tables_read_bench_output bench_tables_read_bench_output
 check deps_reads_both_apt_formats deps_reads_both_apt_formats
 check sizes_out_of_range_are_said sizes_out_of_range_are_said
+check odd_names_stay_machine_readable odd_names_stay_machine_readable
+check bench_reports_the_models_it_could bench_reports_the_models_it_could
 echo
 echo "-----------------------"
 echo "$tests Tests $failures Failures 0 Ignored"
