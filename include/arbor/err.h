@@ -35,6 +35,10 @@ typedef struct {
 bool arbor_fail(arbor_err *e, arbor_status status, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
 
+/* arbor_fail for a system call that failed with errno err: "PATH: WHAT:
+ * the system's reason", ARBOR_ERR_NOMEM for ENOMEM, else ARBOR_ERR_IO. */
+bool arbor_fail_errno(arbor_err *e, const char *path, const char *what, int err);
+
 /* Resets e to ARBOR_OK with an empty message. */
 void arbor_err_clear(arbor_err *e);
 

@@ -1,6 +1,8 @@
 /* err.c - filling arbor_err records (see include/arbor/err.h). */
+#include <errno.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <string.h>
 
 #include "arbor/err.h"
 
@@ -14,6 +16,14 @@ bool arbor_fail(arbor_err *e, arbor_status status, const char *fmt, ...)
     vsnprintf(e->msg, sizeof e->msg, fmt, ap);
     va_end(ap);
     return false;
+}
+
+bool arbor_fail_errno(arbor_err *e, const char *path, const char *what, int err)
+{
+    char reason[128];
+    if (strerror_r(err, reason, sizeof reason) != 0)
+        snprintf(reason, sizeof reason, "error %d", err);
+    return arbor_fail(e, err == ENOMEM ? ARBOR_ERR_NOMEM : ARBOR_ERR_IO, "%s: %s: %s", path, what, reason);
 }
 
 void arbor_err_clear(arbor_err *e)

@@ -1,6 +1,9 @@
 /* sys.c - clock, core count, file identity, prefaulting and UTF-8 repair
  * (see include/arbor/sys.h). */
 #define _DEFAULT_SOURCE /* madvise */
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <time.h>
@@ -86,4 +89,87 @@ void arbor_utf8_repair(char *text, size_t len)
         }
         i += k;
     }
+}
+
+/* ---- files written whole ---- */
+
+/* The permissions a new file gets (0666 less the umask). The umask is read
+ * from /proc, because umask() can only be read by setting it, which would
+ * race with other threads creating files. */
+static mode_t new_file_mode(void)
+{
+    mode_t mask = 022;
+    FILE *f = fopen("/proc/self/status", "r");
+    char line[128];
+    while (f != NULL && fgets(line, sizeof line, f) != NULL) {
+        unsigned m;
+        if (sscanf(line, "Umask: %o", &m) == 1) {
+            mask = (mode_t)m;
+            break;
+        }
+    }
+    if (f != NULL)
+        fclose(f);
+    return 0666 & ~mask;
+}
+
+/* o->f on a temporary file beside o->path (same folder, so the rename
+ * cannot cross file systems), with permissions mode. */
+static bool open_temporary(arbor_file_out *o, mode_t mode, arbor_err *e)
+{
+    if (snprintf(o->tmp, sizeof o->tmp, "%s.XXXXXX", o->path) >= (int)sizeof o->tmp)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s: path too long", o->path);
+    int fd = mkstemp(o->tmp);
+    if (fd < 0)
+        return arbor_fail_errno(e, o->path, "cannot create a temporary file beside it", errno);
+    o->f = fchmod(fd, mode) == 0 ? fdopen(fd, "wb") : NULL;
+    if (o->f == NULL) {
+        int err = errno;
+        close(fd);
+        unlink(o->tmp);
+        return arbor_fail_errno(e, o->path, "cannot create", err);
+    }
+    return true;
+}
+
+bool arbor_file_out_open(arbor_file_out *o, const char *path, arbor_err *e)
+{
+    o->f = NULL;
+    o->tmp[0] = '\0';
+    if (snprintf(o->path, sizeof o->path, "%s", path) >= (int)sizeof o->path)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s: path too long", path);
+    struct stat st;
+    if (stat(path, &st) != 0) {
+        if (errno != ENOENT)
+            return arbor_fail_errno(e, path, "cannot create", errno);
+        return open_temporary(o, new_file_mode(), e);
+    }
+    if (!S_ISREG(st.st_mode)) {
+        o->f = fopen(path, "wb");
+        return o->f != NULL || arbor_fail_errno(e, path, "cannot open", errno);
+    }
+    char *target = realpath(path, NULL);
+    if (target == NULL)
+        return arbor_fail_errno(e, path, "cannot resolve", errno);
+    bool fits = snprintf(o->path, sizeof o->path, "%s", target) < (int)sizeof o->path;
+    free(target);
+    if (!fits)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s: its target's path is too long", path);
+    return open_temporary(o, st.st_mode & 07777, e);
+}
+
+bool arbor_file_out_close(arbor_file_out *o, bool complete, arbor_err *e)
+{
+    int err = ferror(o->f) ? (errno ? errno : EIO) : 0;
+    if (fclose(o->f) != 0 && err == 0)
+        err = errno;
+    o->f = NULL;
+    bool placed = complete && err == 0;
+    if (placed && o->tmp[0] != '\0' && rename(o->tmp, o->path) != 0) {
+        err = errno;
+        placed = false;
+    }
+    if (!placed && o->tmp[0] != '\0')
+        unlink(o->tmp);
+    return placed || (err != 0 && arbor_fail_errno(e, o->path, "cannot write", err));
 }

@@ -10,13 +10,14 @@
  * room and its blocks, the Menger cubes, the heightfield's grid before it is
  * displaced) comes from one axis-aligned face-grid emitter.
  */
-#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "arbor/procgen.h"
+#include "arbor/sys.h"
 #include "loader.h"
 
 /* ---- the builder: welded vertices, quads, face grids, boxes ---- */
@@ -697,29 +698,6 @@ bool arbor_obj_mtl_path(const char *path, char *buf, size_t size)
     return written >= 0 && (size_t)written < size;
 }
 
-static FILE *open_for_writing(const char *path, arbor_err *e)
-{
-    FILE *f = fopen(path, "w");
-    if (f == NULL)
-        loader_fail_errno(e, path, "cannot create", errno);
-    return f;
-}
-
-/* Closes f, reporting any write that failed on the way (a full disk shows
- * up only here, through the stream's error flag or fclose). */
-static bool close_written(FILE *f, const char *path, arbor_err *e)
-{
-    bool failed = ferror(f) != 0;
-    int saved = errno;
-    if (fclose(f) != 0 && !failed) {
-        failed = true;
-        saved = errno;
-    }
-    if (failed)
-        return loader_fail_errno(e, path, "cannot write", saved);
-    return true;
-}
-
 /* Each line of comment as a "# " line. */
 static void write_comment(FILE *f, const char *comment)
 {
@@ -745,9 +723,11 @@ static bool mark_used_materials(const arbor_mesh *m, bool *used)
 
 static bool write_mtl(const arbor_mesh *m, const bool *used, const char *path, const char *comment, arbor_err *e)
 {
-    FILE *f = open_for_writing(path, e);
-    if (f == NULL)
+    /* written whole or not at all: a full disk leaves no half a file */
+    arbor_file_out out;
+    if (!arbor_file_out_open(&out, path, e))
         return false;
+    FILE *f = out.f;
     write_comment(f, comment);
     for (uint32_t i = 0; i < m->nmats; i++) {
         if (!used[i])
@@ -761,7 +741,7 @@ static bool write_mtl(const arbor_mesh *m, const bool *used, const char *path, c
             fprintf(f, "Ni %.6g\n", mat->ni);
         fprintf(f, "illum %d\n", mat->illum);
     }
-    return close_written(f, path, e);
+    return arbor_file_out_close(&out, true, e);
 }
 
 static void write_obj_body(FILE *f, const arbor_mesh *m, const char *mtl_name)
@@ -788,22 +768,29 @@ bool arbor_write_obj(const arbor_mesh *m, const char *path, const char *comment,
         return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory writing %s", path);
     char mtl_path[4096];
     const char *mtl_name = NULL;
-    bool ok = true;
+    bool ok = true, mtl_new = false;
     if (mark_used_materials(m, used)) {
         if (!arbor_obj_mtl_path(path, mtl_path, sizeof mtl_path))
             ok = arbor_fail(e, ARBOR_ERR_INVALID, "path too long: %s", path);
-        else if ((ok = write_mtl(m, used, mtl_path, comment, e))) {
-            const char *slash = strrchr(mtl_path, '/');
-            mtl_name = slash ? slash + 1 : mtl_path;
+        else {
+            mtl_new = access(mtl_path, F_OK) != 0;
+            if ((ok = write_mtl(m, used, mtl_path, comment, e))) {
+                const char *slash = strrchr(mtl_path, '/');
+                mtl_name = slash ? slash + 1 : mtl_path;
+            }
         }
     }
     free(used);
     if (!ok)
         return false;
-    FILE *f = open_for_writing(path, e);
-    if (f == NULL)
-        return false;
-    write_comment(f, comment);
-    write_obj_body(f, m, mtl_name);
-    return close_written(f, path, e);
+    arbor_file_out out;
+    ok = arbor_file_out_open(&out, path, e);
+    if (ok) {
+        write_comment(out.f, comment);
+        write_obj_body(out.f, m, mtl_name);
+        ok = arbor_file_out_close(&out, true, e);
+    }
+    if (!ok && mtl_name != NULL && mtl_new)
+        unlink(mtl_path); /* the library made for a model that is not there */
+    return ok;
 }

@@ -8,20 +8,17 @@
  * longjmp lives in the heap-side `png_sink` / libpng's own structs, not in
  * locals, so no local needs to be volatile.
  *
- * Files are written whole or not at all: to a temporary file renamed over
- * the destination once complete, so a failed write (a full disk) neither
- * leaves a partial image nor removes a file that was there before.
+ * Files are written whole or not at all (arbor_file_out, sys.h), so a
+ * failed write (a full disk) neither leaves a partial image nor removes a
+ * file that was there before.
  */
-#define _XOPEN_SOURCE 700 /* realpath, beyond the build's _POSIX_C_SOURCE */
-#include <errno.h>
 #include <png.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
-#include <unistd.h>
 
 #include "arbor/png.h"
+#include "arbor/sys.h"
 
 #define PNG_ZLIB_LEVEL 1
 
@@ -118,102 +115,17 @@ static bool encode(const uint8_t *rgb, int width, int height, png_sink *sink)
     return true;
 }
 
-static bool fail_errno(arbor_err *e, const char *path, const char *what, int err)
-{
-    char reason[128];
-    if (strerror_r(err, reason, sizeof reason) != 0)
-        snprintf(reason, sizeof reason, "error %d", err);
-    return arbor_fail(e, err == ENOMEM ? ARBOR_ERR_NOMEM : ARBOR_ERR_IO, "%s: %s: %s", path, what, reason);
-}
-
-/* Encodes into an open stream and closes it. A failed write shows up in
- * the stream's error flag (libpng then reports only "Write Error") or at
- * fclose; either way the system's reason is what the message gives. */
-static bool encode_to(FILE *f, const char *path, const uint8_t *rgb, int width, int height, arbor_err *e)
-{
-    png_sink sink = {f, NULL, 0, 0, e, false};
-    bool ok = encode(rgb, width, height, &sink);
-    int err = ferror(f) ? (errno ? errno : EIO) : 0;
-    if (fclose(f) != 0 && err == 0)
-        err = errno;
-    if (err != 0)
-        ok = fail_errno(e, path, "cannot write", err);
-    return ok;
-}
-
-/* The permissions a new file gets (0666 less the umask). The umask is read
- * from /proc, because umask() can only be read by setting it, which would
- * race with other threads creating files. */
-static mode_t new_file_mode(void)
-{
-    mode_t mask = 022;
-    FILE *f = fopen("/proc/self/status", "r");
-    char line[128];
-    while (f != NULL && fgets(line, sizeof line, f) != NULL) {
-        unsigned m;
-        if (sscanf(line, "Umask: %o", &m) == 1) {
-            mask = (mode_t)m;
-            break;
-        }
-    }
-    if (f != NULL)
-        fclose(f);
-    return 0666 & ~mask;
-}
-
-/* A new file at path: written to a temporary file beside it (same folder,
- * so the rename cannot cross file systems) and renamed over path only once
- * complete. On failure only the temporary file, which this call made, is
- * removed; whatever was at path stays as it was. */
-static bool write_replacing(const char *path, mode_t mode, const uint8_t *rgb, int width, int height,
-                            arbor_err *e)
-{
-    char tmp[4096];
-    if (snprintf(tmp, sizeof tmp, "%s.XXXXXX", path) >= (int)sizeof tmp)
-        return arbor_fail(e, ARBOR_ERR_INVALID, "%s: path too long", path);
-    int fd = mkstemp(tmp);
-    if (fd < 0)
-        return fail_errno(e, path, "cannot create a temporary file beside it", errno);
-    FILE *f = fchmod(fd, mode) == 0 ? fdopen(fd, "wb") : NULL;
-    bool ok;
-    if (f == NULL) {
-        ok = fail_errno(e, path, "cannot create", errno);
-        close(fd);
-    } else {
-        ok = encode_to(f, path, rgb, width, height, e);
-    }
-    if (ok && rename(tmp, path) != 0)
-        ok = fail_errno(e, path, "cannot rename the finished image to it", errno);
-    if (!ok)
-        unlink(tmp);
-    return ok;
-}
-
-/* What exists at path decides how it is written: a regular file (or a
- * symbolic link to one: the link's target) is replaced whole, keeping its
- * permissions; something else that exists (/dev/stdout, a FIFO) is written
- * in place, since renaming over it would replace a device node, and never
- * removed. */
+/* A libpng failure to write shows up in the stream's error flag (libpng
+ * then reports only "Write Error"), so the file's close gives the system's
+ * reason (arbor_file_out_close). */
 bool arbor_png_write_file(const char *path, const uint8_t *rgb, int width, int height, arbor_err *e)
 {
-    struct stat st;
-    if (stat(path, &st) != 0) {
-        if (errno != ENOENT)
-            return fail_errno(e, path, "cannot create", errno);
-        return write_replacing(path, new_file_mode(), rgb, width, height, e);
-    }
-    if (!S_ISREG(st.st_mode)) {
-        FILE *f = fopen(path, "wb");
-        if (f == NULL)
-            return fail_errno(e, path, "cannot open", errno);
-        return encode_to(f, path, rgb, width, height, e);
-    }
-    char *target = realpath(path, NULL);
-    if (target == NULL)
-        return fail_errno(e, path, "cannot resolve", errno);
-    bool ok = write_replacing(target, st.st_mode & 07777, rgb, width, height, e);
-    free(target);
-    return ok;
+    arbor_file_out out;
+    if (!arbor_file_out_open(&out, path, e))
+        return false;
+    png_sink sink = {out.f, NULL, 0, 0, e, false};
+    bool encoded = encode(rgb, width, height, &sink);
+    return arbor_file_out_close(&out, encoded, e) && encoded;
 }
 
 bool arbor_png_encode(const uint8_t *rgb, int width, int height, uint8_t **out, size_t *out_len, arbor_err *e)
