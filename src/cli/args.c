@@ -18,13 +18,16 @@ const char *cli_value(const char *cmd, int argc, char **argv, int *i)
     return argv[*i];
 }
 
-bool cli_once(const char *cmd, const char *opt, const char **slot, const char *value)
+bool cli_first(const char *cmd, cli_seen *seen, const char *opt)
 {
-    if (*slot != NULL) {
-        fprintf(stderr, "arbord %s: %s given twice ('%s' and '%s'); it takes one\n", cmd, opt, *slot, value);
-        return false;
-    }
-    *slot = value;
+    const char *name = strcmp(opt, "-o") == 0 ? "--output" : opt;
+    for (int k = 0; k < seen->n; k++)
+        if (strcmp(seen->name[k], name) == 0) {
+            fprintf(stderr, "arbord %s: %s given twice; it takes one\n", cmd, opt);
+            return false;
+        }
+    if (seen->n < CLI_SEEN_MAX)
+        seen->name[seen->n++] = name;
     return true;
 }
 

@@ -26,9 +26,17 @@ int remote_render(const char *url, const cJSON *request, int width, int height, 
 /* argv[*i] is an option that takes a value: returns argv[*i + 1] and advances
  * *i, or prints "arbord CMD: OPT needs a value" and returns NULL. */
 const char *cli_value(const char *cmd, int argc, char **argv, int *i);
-/* For an option given at most once (--model, -o): stores value in *slot,
- * or prints "arbord CMD: OPT given twice ('a' and 'b')" and returns false. */
-bool cli_once(const char *cmd, const char *opt, const char **slot, const char *value);
+/* The options of one command line seen so far: each is taken once (but
+ * the few a command lets repeat, bench's --model, serve's --models), so
+ * that a second value is an error rather than silently the one that wins. */
+#define CLI_SEEN_MAX 64
+typedef struct {
+    const char *name[CLI_SEEN_MAX];
+    int n;
+} cli_seen;
+/* Records option opt (-o as --output); prints "arbord CMD: OPT given twice;
+ * it takes one" and returns false when it was seen before. */
+bool cli_first(const char *cmd, cli_seen *seen, const char *opt);
 /* Prints o (a report.h object, or NULL when making it ran out of memory) on
  * one line of stdout and frees it; false for NULL or out of memory. */
 bool cli_print_json(cJSON *o);

@@ -301,12 +301,15 @@ static bool parse_embree_isa(const char *v, arbor_bench_opts *o)
 /* Returns -1 to go on, else the exit code. */
 static int parse_args(int argc, char **argv, bench_args *a)
 {
+    cli_seen seen = {.n = 0};
     for (int i = 1; i < argc; i++) {
         const char *opt = argv[i], *v;
         bool ok = true;
         if (strcmp(opt, "--help") == 0 || strcmp(opt, "-h") == 0) {
             usage(stdout);
             return 0;
+        } else if (strcmp(opt, "--model") != 0 && !cli_first("bench", &seen, opt)) {
+            return 2;
         } else if (strcmp(opt, "--embree") == 0) {
             a->opts.embree = true;
         } else if (strcmp(opt, "--embree-robust") == 0) {

@@ -106,10 +106,13 @@ typedef struct {
 /* Reads argv into a; prints the problem and returns false on a usage error. */
 static bool parse_args(int argc, char **argv, gen_args *a)
 {
+    cli_seen seen = {.n = 0};
     for (int i = 1; i < argc; i++) {
         const char *s = argv[i];
         const char **target = NULL;
         int *number = NULL;
+        if (s[0] == '-' && !cli_first("gen", &seen, s))
+            return false;
         if (strcmp(s, "--all") == 0) {
             a->all = true;
             continue;
@@ -136,7 +139,9 @@ static bool parse_args(int argc, char **argv, gen_args *a)
         const char *value = cli_value("gen", argc, argv, &i);
         if (value == NULL)
             return false;
-        if (target != NULL ? !cli_once("gen", s, target, value) : !cli_int("gen", s, value, 0, 1000000, number))
+        if (target != NULL)
+            *target = value;
+        else if (!cli_int("gen", s, value, 0, 1000000, number))
             return false;
     }
     return true;

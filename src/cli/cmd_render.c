@@ -97,28 +97,31 @@ static int check_remote_args(const render_args *a)
 static int parse_args(int argc, char **argv, render_args *a)
 {
     const char *cmd = "render";
+    cli_seen seen = {.n = 0};
     for (int i = 1; i < argc; i++) {
         const char *opt = argv[i], *v = NULL;
         if (strcmp(opt, "--help") == 0 || strcmp(opt, "-h") == 0) {
             usage(stdout);
             return 0;
         }
-        if (strcmp(opt, "--counts") == 0) {
-            a->counts = true;
-            continue;
-        }
-        if (!takes_value(opt)) {
+        if (strcmp(opt, "--counts") != 0 && !takes_value(opt)) {
             fprintf(stderr, "arbord render: unknown option '%s'\n", opt);
             usage(stderr);
             return 2;
+        }
+        if (!cli_first(cmd, &seen, opt))
+            return 2;
+        if (strcmp(opt, "--counts") == 0) {
+            a->counts = true;
+            continue;
         }
         if ((v = cli_value(cmd, argc, argv, &i)) == NULL)
             return 2;
         bool ok = true;
         if (strcmp(opt, "--model") == 0) {
-            ok = cli_once(cmd, opt, &a->model, v);
+            a->model = v;
         } else if (strcmp(opt, "-o") == 0 || strcmp(opt, "--output") == 0) {
-            ok = cli_once(cmd, opt, &a->output, v);
+            a->output = v;
         } else if (strcmp(opt, "--accel") == 0) {
             if (!(ok = arbor_accel_kind_parse(v, &a->kind)))
                 fprintf(stderr, "arbord render: unknown accel '%s' (bvh, kd)\n", v);
@@ -141,7 +144,7 @@ static int parse_args(int argc, char **argv, render_args *a)
         } else if (strcmp(opt, "--threads") == 0) {
             ok = a->threads_given = cli_int(cmd, opt, v, 0, 1024, &a->threads);
         } else if (strcmp(opt, "--url") == 0) {
-            ok = cli_once(cmd, opt, &a->url, v);
+            a->url = v;
         } else if (strcmp(opt, "--split") == 0) {
             ok = cli_int(cmd, opt, v, 1, ARBOR_MAX_IMAGE_SIZE, &a->split);
         } else if (strcmp(opt, "--connections") == 0) {

@@ -136,6 +136,7 @@ static void defaults(serve_args *a)
 static int parse_args(int argc, char **argv, serve_args *a)
 {
     const char *cmd = "serve";
+    cli_seen seen = {.n = 0};
     arbor_server_config *c = &a->server;
     for (int i = 1; i < argc; i++) {
         const char *o = argv[i], *v = NULL;
@@ -155,6 +156,8 @@ static int parse_args(int argc, char **argv, serve_args *a)
             fprintf(stderr, "arbord serve: unknown option '%s' (see arbord serve --help)\n", o);
             return 2;
         }
+        if (strcmp(o, "--models") != 0 && !cli_first(cmd, &seen, o))
+            return 2;
         if ((v = cli_value(cmd, argc, argv, &i)) == NULL)
             return 2;
         bool ok = true;

@@ -60,16 +60,19 @@ int cmd_stats(int argc, char **argv)
     const char *model = NULL, *accel = "bvh", *builder = "all";
     bool json = false;
     int threads = 0;
+    cli_seen seen = {.n = 0};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             usage(stdout);
             return 0;
+        } else if (!cli_first("stats", &seen, a)) {
+            return 2;
         } else if (strcmp(a, "--json") == 0) {
             json = true;
         } else if (strcmp(a, "--model") == 0) {
             const char *v = cli_value("stats", argc, argv, &i);
-            if (v == NULL || !cli_once("stats", a, &model, v)) return 2;
+            if ((model = v) == NULL) return 2;
         } else if (strcmp(a, "--accel") == 0) {
             if ((accel = cli_value("stats", argc, argv, &i)) == NULL) return 2;
         } else if (strcmp(a, "--builder") == 0) {

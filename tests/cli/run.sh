@@ -77,7 +77,14 @@ one_value_options_refuse_a_second() {
         usage_fails render --model "$model" -o "$tmp/never.png" -o "$tmp/never2.png" &&
         usage_fails stats --model "$model" --model "$model" &&
         grep -q -- "--model given twice" "$tmp/usage.err" &&
-        usage_fails gen sphere -o "$tmp/never.obj" -o "$tmp/never2.obj"
+        usage_fails gen sphere -o "$tmp/never.obj" -o "$tmp/never2.obj" &&
+        usage_fails render --model "$model" -o "$tmp/never.png" --mode shaded --mode heat &&
+        grep -q -- "--mode given twice" "$tmp/usage.err" &&
+        usage_fails render --model "$model" --output "$tmp/never.png" -o "$tmp/never2.png" &&
+        usage_fails stats --model "$model" --accel bvh --accel kd &&
+        usage_fails gen sphere --level 2 --level 3 -o "$tmp/never.obj" &&
+        usage_fails bench --model "$model" --runs 1 --runs 2 &&
+        usage_fails serve --port 0 --port 1 --models "$root/models"
 }
 
 # A failed write leaves what was at the path: a device stays a device, an
