@@ -5,8 +5,10 @@
  * One pass over the buffer with a cursor, no allocation per line. Read: v
  * (x y z; w or vertex colours after them ignored), vn (kept for smooth
  * shading), vt (counted), f in every index form (a, a/b, a/b/c, a//c; negative = from
- * the end of the list so far), usemtl, mtllib. o, g, s and every other
- * statement are skipped.
+ * the end of the list so far), usemtl, mtllib. o, g, s and the other OBJ
+ * statements are skipped; a line that is no OBJ statement is skipped too but
+ * warned of (a model that loads partly should say so), and one holding
+ * control bytes means the file is binary, not OBJ: an error.
  */
 #define _XOPEN_SOURCE 700 /* realpath, beyond the build's _POSIX_C_SOURCE */
 #include <errno.h>
@@ -36,6 +38,9 @@ typedef struct {
     uint32_t mat; /* material of the faces that follow */
     obj_library libs[OBJ_MAX_LIBRARIES];
     uint32_t nlibs;
+    uint32_t nunknown; /* lines that are no OBJ statement, for one warning */
+    uint32_t unknown_line;
+    char unknown_word[40];
 } obj_reader;
 
 /* ---- faces ---- */
@@ -282,6 +287,32 @@ static bool load_libraries(obj_reader *r, arbor_err *e)
 
 /* ---- statements ---- */
 
+/* The OBJ statements arbor has no use for (free-form geometry, grouping,
+ * display and render attributes), most frequent first. */
+static const char *const skipped_statements[] = {
+    "s", "g", "o", "vp", "l", "p", "mg", "usemap", "maplib", "cstype", "deg", "bmat", "step", "curv", "curv2",
+    "surf", "parm", "trim", "hole", "scrv", "sp", "end", "con", "bevel", "c_interp", "d_interp", "lod",
+    "shadow_obj", "trace_obj", "ctech", "stech", "call", "csh", "bsp", "bzp", "cdc", "cdp", "res",
+};
+
+/* A line that starts with no OBJ statement: an error if it holds control
+ * bytes (binary data), else counted for the warning at the end. Cold and out
+ * of line, so that the parse loop stays as tight as before. */
+static __attribute__((noinline, cold)) bool unknown_statement(obj_reader *r, const char *w, size_t n, arbor_err *e)
+{
+    for (size_t i = 0; i < sizeof skipped_statements / sizeof skipped_statements[0]; i++)
+        if (text_word_is(w, n, skipped_statements[i]))
+            return true;
+    for (const char *p = w; p < r->c.end && *p != '\n'; p++)
+        if ((unsigned char)*p < 0x20 && !text_is_blank(*p))
+            return text_fail(&r->c, e, "binary data (byte 0x%02x): not an OBJ file", (unsigned char)*p);
+    if (r->nunknown++ == 0) {
+        r->unknown_line = r->c.line;
+        text_excerpt(r->unknown_word, sizeof r->unknown_word, w, r->c.end);
+    }
+    return true;
+}
+
 static bool read_statement(obj_reader *r, const char *w, size_t n, arbor_err *e)
 {
     if (n == 1 && w[0] == 'v')
@@ -299,7 +330,9 @@ static bool read_statement(obj_reader *r, const char *w, size_t n, arbor_err *e)
         return use_material(r, e);
     if (text_word_is(w, n, "mtllib"))
         return load_libraries(r, e);
-    return true; /* comments, o, g, s, and statements arbor has no use for */
+    if (n == 0 || w[0] == '#')
+        return true;
+    return unknown_statement(r, w, n, e);
 }
 
 bool arbor_load_obj_text(const char *text, size_t len, const char *name, const char *dir, arbor_mesh *m,
@@ -317,6 +350,9 @@ bool arbor_load_obj_text(const char *text, size_t len, const char *name, const c
         ok = read_statement(&r, w, n, e);
         text_next_line(&r.c);
     }
+    if (ok && r.nunknown > 0)
+        arbor_mesh_warn(m, "%s:%u: '%s' is not an OBJ statement; %u such line%s ignored", name, r.unknown_line,
+                        r.unknown_word, r.nunknown, r.nunknown == 1 ? "" : "s");
     material_table_free(&r.mats);
     free(r.real_dir);
     return loader_finish(ok, m, name, e);

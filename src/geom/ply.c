@@ -7,7 +7,9 @@
  * face element only the vertex_indices (or vertex_index) list; every other
  * property and element is read past, which in binary needs each one's size,
  * lists included. Every value read is bounds-checked, so a short or hostile
- * file ends in an error, never a read past the buffer.
+ * file ends in an error, never a read past the buffer. In ascii each item is
+ * one line: a line with values missing or left over is an error there, as a
+ * stream of values would let one short line shift every item after it.
  */
 #include <math.h>
 #include <stdarg.h>
@@ -49,6 +51,7 @@ typedef struct {
     ply_element_kind kind;
     uint32_t count;
     uint32_t nprops;
+    uint32_t nlists; /* of the properties, how many are lists */
     ply_property props[PLY_MAX_PROPERTIES];
 } ply_element;
 
@@ -64,6 +67,9 @@ typedef struct {
     uint32_t nverts; /* the vertex element's count, for checking indices */
     const ply_element *elem; /* where the body is, for messages */
     uint32_t item;
+    /* the item's values so far, and how many it needs: one per property,
+     * plus each list's length once read (ascii checks its line by them) */
+    uint32_t nvalues, need, lists_unread;
 } ply_reader;
 
 /* Body errors: "NAME:LINE:" in ascii, "NAME: ELEMENT ITEM:" in binary. */
@@ -189,6 +195,7 @@ static bool read_property(ply_reader *r, arbor_err *e)
         return text_fail(&r->c, e, "property without a name");
     if (!assign_role(r, el, prop, w, n, e))
         return false;
+    el->nlists += prop->is_list;
     el->nprops++;
     return true;
 }
@@ -292,21 +299,20 @@ static bool read_binary(ply_reader *r, ply_type t, double *out, arbor_err *e)
     return true;
 }
 
-/* Ascii: the next number, wherever the line breaks fall. Floats go through
- * the float parser so coordinates round once, straight to float. */
+/* Ascii: a line holding other than the item's values. */
+static bool wrong_count(const ply_reader *r, uint32_t got, arbor_err *e)
+{
+    return body_fail(r, e, "%u value%s where element '%s' needs %s%u", got, got == 1 ? "" : "s", r->elem->name,
+                     r->lists_unread ? "at least " : "", r->need);
+}
+
+/* Ascii: the next number on the item's line. Floats go through the float
+ * parser so coordinates round once, straight to float. */
 static bool read_ascii(ply_reader *r, ply_type t, double *out, arbor_err *e)
 {
-    while (r->c.p < r->c.end && (text_is_blank(*r->c.p) || *r->c.p == '\n')) {
-        if (*r->c.p == '\n')
-            r->c.line++;
-        r->c.p++;
-    }
-    if (r->c.p == r->c.end) {
-        /* name the file's last line, not the empty one after its newline */
-        if (r->c.line > 1 && r->c.end[-1] == '\n')
-            r->c.line--;
-        return body_fail(r, e, "data ends in element '%s' (item %u of %u)", r->elem->name, r->item, r->elem->count);
-    }
+    text_skip_blanks(&r->c);
+    if (r->c.p == r->c.end || *r->c.p == '\n')
+        return wrong_count(r, r->nvalues, e);
     const char *q;
     if (t >= PLY_FLOAT32) {
         float f = 0.0f;
@@ -323,6 +329,7 @@ static bool read_ascii(ply_reader *r, ply_type t, double *out, arbor_err *e)
         return body_fail(r, e, "malformed number '%s' in element '%s'", word, r->elem->name);
     }
     r->c.p = q;
+    r->nvalues++;
     return true;
 }
 
@@ -340,6 +347,8 @@ static bool read_length(ply_reader *r, const ply_property *prop, uint32_t *out, 
     if (!(v >= 0 && v <= UINT32_MAX))
         return body_fail(r, e, "list length %.0f out of range", v);
     *out = (uint32_t)v;
+    r->need = *out > UINT32_MAX - r->need ? UINT32_MAX : r->need + *out;
+    r->lists_unread--;
     return true;
 }
 
@@ -415,6 +424,9 @@ static bool read_polygon(ply_reader *r, const ply_property *prop, arbor_err *e)
 static bool read_item(ply_reader *r, const ply_element *el, arbor_err *e)
 {
     float xyz[3] = {0, 0, 0};
+    r->nvalues = 0;
+    r->need = el->nprops;
+    r->lists_unread = el->nlists;
     for (uint32_t k = 0; k < el->nprops; k++) {
         const ply_property *prop = &el->props[k];
         bool ok = prop->role == ROLE_SKIP      ? skip_property(r, prop, e)
@@ -426,17 +438,73 @@ static bool read_item(ply_reader *r, const ply_element *el, arbor_err *e)
     return el->kind != ELEMENT_VERTEX || arbor_mesh_add_vert(r->m, vec3(xyz[0], xyz[1], xyz[2]), e);
 }
 
+/* Ascii: moves past blank lines; true when text is left. */
+static bool skip_blank_lines(ply_reader *r)
+{
+    for (text_skip_blanks(&r->c); r->c.p < r->c.end && *r->c.p == '\n'; text_skip_blanks(&r->c))
+        text_next_line(&r->c);
+    return r->c.p < r->c.end;
+}
+
+/* Ascii: finds the item's line (blank lines before it are allowed). */
+static bool start_line(ply_reader *r, const ply_element *el, arbor_err *e)
+{
+    if (!skip_blank_lines(r)) {
+        /* name the file's last line, not the empty one after its newline */
+        if (r->c.line > 1 && r->c.end[-1] == '\n')
+            r->c.line--;
+        return body_fail(r, e, "data ends in element '%s' (item %u of %u)", el->name, r->item, el->count);
+    }
+    return true;
+}
+
+/* Ascii: the item's line must end after its values. */
+static bool end_line(ply_reader *r, arbor_err *e)
+{
+    const char *w;
+    uint32_t got = r->nvalues;
+    while (text_word(&r->c, &w) > 0)
+        got++;
+    if (got != r->nvalues)
+        return wrong_count(r, got, e);
+    text_next_line(&r->c);
+    return true;
+}
+
+/* What follows the last element is ignored, with a warning: a reader
+ * that stopped early, or a writer that counted wrong, should be seen. */
+static void warn_trailing(ply_reader *r)
+{
+    if (r->format != PLY_ASCII) {
+        if (r->c.p < r->c.end)
+            arbor_mesh_warn(r->m, "%s: %zu bytes after the last element ignored", r->c.name,
+                            (size_t)(r->c.end - r->c.p));
+        return;
+    }
+    if (!skip_blank_lines(r))
+        return;
+    uint32_t first = r->c.line, lines = 0;
+    while (skip_blank_lines(r)) {
+        lines++;
+        text_next_line(&r->c);
+    }
+    arbor_mesh_warn(r->m, "%s:%u: %u line%s after the last element ignored", r->c.name, first, lines,
+                    lines == 1 ? "" : "s");
+}
+
 static bool read_body(ply_reader *r, arbor_err *e)
 {
+    bool ascii = r->format == PLY_ASCII;
     for (uint32_t i = 0; i < r->nelems; i++) {
         const ply_element *el = &r->elems[i];
         r->elem = el;
         /* an element without properties has nothing to read, however many items */
         for (r->item = 0; el->nprops > 0 && r->item < el->count; r->item++) {
-            if (!read_item(r, el, e))
+            if ((ascii && !start_line(r, el, e)) || !read_item(r, el, e) || (ascii && !end_line(r, e)))
                 return false;
         }
     }
+    warn_trailing(r);
     return true;
 }
 

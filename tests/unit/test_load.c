@@ -309,6 +309,7 @@ static void test_crlf_tabs_comments_and_skipped_statements(void)
                               &m, &e));
     TEST_ASSERT_EQUAL_UINT32(4, m.nverts);
     TEST_ASSERT_EQUAL_UINT32(2, m.ntris);
+    TEST_ASSERT_EQUAL_UINT32(0, m.nwarnings);
     assert_vec(0.5f, 0, 0, m.verts[0]);
     assert_vec(0, 0, 1, m.verts[3]);
     assert_tri(&m, 1, 0, 2, 3);
@@ -586,6 +587,65 @@ static void test_gz_is_capped_by_its_decompressed_size(void)
     arbor_mesh_free(&m);
     TEST_ASSERT_FALSE(arbor_load_model_capped(plain, strlen(text) - 1, &m, &e));
     assert_error(&e, ARBOR_ERR_IO, "small.obj: 32 bytes, more than the limit of 31 bytes");
+}
+
+/* Every OBJ statement arbor does not use is read past without a word. */
+static void test_every_skipped_obj_statement_is_silent(void)
+{
+    const char *statements[] = {
+        "vp", "g", "o", "s", "l", "p", "mg", "usemap", "maplib", "cstype", "deg", "bmat", "step", "curv", "curv2",
+        "surf", "parm", "trim", "hole", "scrv", "sp", "end", "con", "bevel", "c_interp", "d_interp", "lod",
+        "shadow_obj", "trace_obj", "ctech", "stech", "call", "csh", "bsp", "bzp", "cdc", "cdp", "res",
+        "#", "#comment", "####", "vt", "vn", "mtllib",
+    };
+    char text[2048] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n\n  \t\n";
+    for (size_t i = 0; i < sizeof statements / sizeof statements[0]; i++) {
+        size_t k = strlen(text);
+        snprintf(text + k, sizeof text - k, "%s 0 1 0\n", statements[i]);
+    }
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(load_obj(text, &m, &e), e.msg);
+    TEST_ASSERT_EQUAL_UINT32(1, m.ntris);
+    TEST_ASSERT_EQUAL_UINT32_MESSAGE(0, m.nwarnings, m.nwarnings ? m.warnings[0] : "");
+    arbor_mesh_free(&m);
+}
+
+/* A line that is no OBJ statement would let a model load partly without a
+ * word: one warning names the first and counts them all. */
+static void test_unknown_obj_statements_are_a_warning(void)
+{
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(load_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nF 1 2 4\nfo 1 3 4\nf 2 3 4\n", &m, &e),
+                             e.msg);
+    TEST_ASSERT_EQUAL_UINT32(2, m.ntris);
+    TEST_ASSERT_EQUAL_UINT32(1, m.nwarnings);
+    TEST_ASSERT_TRUE_MESSAGE(has_warning(&m, "t.obj:6: 'F' is not an OBJ statement; 2 such lines ignored"),
+                             m.warnings[0]);
+    arbor_mesh_free(&m);
+
+    /* text that is not OBJ after a valid model: one line of it is enough */
+    TEST_ASSERT_TRUE_MESSAGE(load_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n<html><body>gone</body></html>", &m, &e),
+                             e.msg);
+    TEST_ASSERT_EQUAL_UINT32(1, m.nwarnings);
+    TEST_ASSERT_TRUE_MESSAGE(has_warning(&m, "t.obj:5: '<html><body>gone</body></html>' is not an OBJ statement; 1 "
+                                             "such line ignored"),
+                             m.warnings[0]);
+    arbor_mesh_free(&m);
+}
+
+/* Binary bytes after a valid model: the file is not OBJ, whatever came first. */
+static void test_binary_data_in_obj_is_an_error(void)
+{
+    assert_obj_fails("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n\nPK\x03\x04\x14 junk\n",
+                     "t.obj:6: binary data (byte 0x03): not an OBJ file");
+    const char text[] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nx\0\0\0\xff\n";
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_FALSE(arbor_load_obj_text(text, sizeof text - 1, "t.obj", NULL, &m, &e));
+    assert_error(&e, ARBOR_ERR_PARSE, "t.obj:5: binary data (byte 0x00): not an OBJ file");
+    assert_mesh_empty(&m);
 }
 
 /* ---- errors ---- */
@@ -940,8 +1000,79 @@ static void test_ply_errors(void)
     assert_ply_header_fails("4 0 1 2 3 9\n", "4 0 1 -2 3 9\n", "t.ply:23: vertex index -2 out of range");
     assert_ply_header_fails("3 0 1 4 0\n", "2 0 1 0\n", "t.ply:24: face has 2 vertices (needs at least 3)");
     assert_ply_header_fails("1 1 0 0 1 7\n", "1 1 zero 0 1 7\n", "t.ply:20: malformed number 'zero'");
-    assert_ply_header_fails("3 0 1 4 0\n0 1\n", "3 0 1\n", "t.ply:24: data ends in element 'face' (item 1 of 2)");
+    assert_ply_header_fails("3 0 1 4 0\n0 1\n", "", "t.ply:23: data ends in element 'face' (item 1 of 2)");
+    assert_ply_header_fails("3 0 1 4 0\n0 1\n", "3 0 1\n", "t.ply:24: 3 values where element 'face' needs 5");
+    assert_ply_header_fails("0 1 0 0 0\n", "0 1 0 0\n", "t.ply:21: 4 values where element 'vertex' needs at least 5");
     assert_ply_header_fails("-2.5 3.25 1e3 0 0\n", "-2.5 3.25 1e39 0 0\n", "t.ply:22: infinite vertex coordinate");
+}
+
+/* A triangle's header, for bodies that are wrong in one line; the body
+ * starts at line 10. */
+static void assert_ply_body_fails(uint32_t nverts, const char *body, const char *fragment)
+{
+    char text[1024];
+    snprintf(text, sizeof text,
+             "ply\nformat ascii 1.0\nelement vertex %u\nproperty float x\nproperty float y\nproperty float z\n"
+             "element face 1\nproperty list uchar int vertex_indices\nend_header\n%s",
+             nverts, body);
+    assert_ply_fails(text, strlen(text), fragment);
+}
+
+/* In ascii each item is one line: a short or long line is an error there,
+ * not a shift of every value after it. */
+static void test_ply_ascii_items_are_lines(void)
+{
+    assert_ply_body_fails(3, "0 0 0\n1 0\n0 1 0 0\n3 0 1 2\n", "t.ply:11: 2 values where element 'vertex' needs 3");
+    assert_ply_body_fails(3, "0 0 0\n1 0\n0 1 0\n3 0 1 2\n", "t.ply:11: 2 values where element 'vertex' needs 3");
+    assert_ply_body_fails(3, "0 0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "t.ply:10: 4 values where element 'vertex' needs 3");
+    assert_ply_body_fails(4, "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "t.ply:13: 4 values where element 'vertex' needs 3");
+    assert_ply_body_fails(4, "0 0 0\n1 0 0\n0 1 0\n", "t.ply:12: data ends in element 'vertex' (item 3 of 4)");
+    assert_ply_body_fails(3, "0 0 0\n1 0 0\n0 1 0\n3 0 1 2 2\n", "t.ply:13: 5 values where element 'face' needs 4");
+    assert_ply_body_fails(3, "0 0 0\n1 0 0\n0 1 0\n3 0 1", "t.ply:13: 3 values where element 'face' needs 4");
+    assert_ply_body_fails(3, "0 0 0\n1 0 0\n0 1 0\n3\n0 1 2\n", "t.ply:13: 1 value where element 'face' needs 4");
+}
+
+/* Blank lines between items are read past; data after the last element
+ * loads with a warning naming where it starts. */
+static void test_ply_data_after_the_last_element_is_a_warning(void)
+{
+    const char *header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                         "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
+    const char *bodies[] = {"0 0 0\r\n\n  \n1 0 0\r\n0 1 0\r\n\t\n3 0 1 2\r\n \n\n",
+                            "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n\n3 0 2 1\n4 0 1 2 0\n",
+                            "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 2 1"};
+    const char *warnings[] = {NULL, "t.ply:15: 2 lines after the last element ignored",
+                              "t.ply:14: 1 line after the last element ignored"};
+    for (int i = 0; i < 3; i++) {
+        char text[512];
+        snprintf(text, sizeof text, "%s%s", header, bodies[i]);
+        arbor_mesh m;
+        arbor_err e;
+        TEST_ASSERT_TRUE_MESSAGE(arbor_load_ply_data(text, strlen(text), "t.ply", &m, &e), e.msg);
+        TEST_ASSERT_EQUAL_UINT32(1, m.ntris);
+        assert_tri(&m, 0, 0, 1, 2);
+        TEST_ASSERT_EQUAL_UINT32(warnings[i] != NULL, m.nwarnings);
+        if (warnings[i] != NULL) {
+            TEST_ASSERT_TRUE_MESSAGE(has_warning(&m, warnings[i]), m.warnings[0]);
+        }
+        arbor_mesh_free(&m);
+    }
+
+    byte_writer w;
+    build_ply_little(&w);
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(arbor_load_ply_data((const char *)w.bytes, w.len, "t.ply", &m, &e), e.msg);
+    TEST_ASSERT_EQUAL_UINT32(0, m.nwarnings);
+    arbor_mesh_free(&m);
+    put(&w, '\n', 1);
+    put(&w, 0, 1);
+    put(&w, 1, 1);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_load_ply_data((const char *)w.bytes, w.len, "t.ply", &m, &e), e.msg);
+    assert_ply_model(&m);
+    TEST_ASSERT_EQUAL_UINT32(1, m.nwarnings);
+    TEST_ASSERT_TRUE_MESSAGE(has_warning(&m, "t.ply: 3 bytes after the last element ignored"), m.warnings[0]);
+    arbor_mesh_free(&m);
 }
 
 /* Every cut of a binary PLY short of its full length is an error naming
@@ -1180,6 +1311,9 @@ int main(void)
     RUN_TEST(test_vertex_normals_follow_the_fan);
     RUN_TEST(test_shading_normal_interpolates);
     RUN_TEST(test_crlf_tabs_comments_and_skipped_statements);
+    RUN_TEST(test_every_skipped_obj_statement_is_silent);
+    RUN_TEST(test_unknown_obj_statements_are_a_warning);
+    RUN_TEST(test_binary_data_in_obj_is_an_error);
     RUN_TEST(test_faces_before_usemtl_use_the_default_material);
     RUN_TEST(test_mtl_values_reach_the_materials_faces_use);
     RUN_TEST(test_several_libraries_on_one_mtllib_line);
@@ -1198,6 +1332,8 @@ int main(void)
     RUN_TEST(test_ply_binary_both_byte_orders);
     RUN_TEST(test_ply_files_plain_and_gz);
     RUN_TEST(test_ply_errors);
+    RUN_TEST(test_ply_ascii_items_are_lines);
+    RUN_TEST(test_ply_data_after_the_last_element_is_a_warning);
     RUN_TEST(test_ply_binary_truncated_anywhere_fails);
     RUN_TEST(test_ply_binary_nan_coordinate);
     RUN_TEST(test_parse_float_edge_cases);
