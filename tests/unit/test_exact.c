@@ -423,21 +423,22 @@ static void test_only_exact_scales_are_accepted(void)
     arbor_err e;
     arbor_mesh_init(&m);
     TEST_ASSERT_TRUE(arbor_mesh_add_vert(&m, vec3(1.5f, -3.0f, 0.0f), &e));
-    TEST_ASSERT_TRUE(arbor_mesh_add_vert(&m, vec3(1e-30f, 2.0f, 1e30f), &e));
+    TEST_ASSERT_TRUE(arbor_mesh_add_vert(&m, vec3(1e-30f, 2.0f, 1e10f), &e));
     TEST_ASSERT_TRUE(arbor_mesh_add_vert(&m, vec3(0.0f, 1.0f, 0.0f), &e));
     TEST_ASSERT_TRUE(arbor_mesh_add_tri(&m, 0, 1, 2, 0, &e));
     TEST_ASSERT_TRUE(arbor_mesh_finish(&m, &e));
     const float refused[] = {3.0f, 0.75f, -2.0f, 0.0f, INFINITY, NAN, 0x1p-30f /* 1e-30 goes subnormal */,
-                             0x1p30f /* 1e30 overflows */};
+                             0x1p100f /* 1e10 overflows */,
+                             0x1p30f /* 1e19 across: beyond single-precision ray tests (ARBOR_SIZE_MAX) */};
     for (size_t i = 0; i < sizeof refused / sizeof refused[0]; i++) {
         TEST_ASSERT_FALSE(arbor_bench_scale_mesh(&m, refused[i], &e));
         TEST_ASSERT_EQUAL_INT(ARBOR_ERR_INVALID, e.status);
         TEST_ASSERT_EQUAL_FLOAT(1.5f, m.verts[0].x);
-        TEST_ASSERT_EQUAL_FLOAT(1e30f, m.bounds.hi.z);
+        TEST_ASSERT_EQUAL_FLOAT(1e10f, m.bounds.hi.z);
     }
     TEST_ASSERT_TRUE_MESSAGE(arbor_bench_scale_mesh(&m, 0x1p-8f, &e), e.msg);
-    TEST_ASSERT_TRUE(m.verts[0].x == 1.5f / 256 && m.verts[1].x == 1e-30f / 256 && m.verts[1].z == 1e30f / 256);
-    TEST_ASSERT_TRUE(m.bounds.lo.y == -3.0f / 256 && m.bounds.hi.z == 1e30f / 256);
+    TEST_ASSERT_TRUE(m.verts[0].x == 1.5f / 256 && m.verts[1].x == 1e-30f / 256 && m.verts[1].z == 1e10f / 256);
+    TEST_ASSERT_TRUE(m.bounds.lo.y == -3.0f / 256 && m.bounds.hi.z == 1e10f / 256);
     arbor_mesh_free(&m);
 }
 
