@@ -25,10 +25,6 @@
  * of decompressed data, is an ARBOR_ERR_IO error. */
 bool loader_read_file(const char *path, bool gz, size_t max_bytes, char **data, size_t *len, arbor_err *e);
 
-/* Fails with ARBOR_ERR_IO and "PATH: WHAT: reason" for errno value err
- * (strerror_r: other threads may be formatting errors too). */
-bool loader_fail_errno(arbor_err *e, const char *path, const char *what, int err);
-
 /* Checks that the mesh has triangles and finishes it (arbor_mesh_finish). On
  * failure, or when ok is false (the parser already failed), frees the mesh,
  * so a loader can end with `return loader_finish(ok, m, name, e);`. */

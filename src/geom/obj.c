@@ -253,7 +253,7 @@ static bool load_library(obj_reader *r, const char *w, size_t n, arbor_err *e)
     arbor_err err;
     bool ok;
     if (real == NULL) {
-        ok = loader_fail_errno(&err, path, "cannot open", errno);
+        ok = arbor_fail_errno(&err, path, "cannot open", errno);
     } else if (!real_path_inside(real, dir)) {
         arbor_mesh_warn(r->m, "%s:%u: material library '%.*s' is outside the model's folder; not loaded", r->c.name,
                         r->c.line, text_shown(n), w);

@@ -20,19 +20,11 @@
 
 /* ---- whole files ---- */
 
-bool loader_fail_errno(arbor_err *e, const char *path, const char *what, int err)
-{
-    char reason[128];
-    if (strerror_r(err, reason, sizeof reason) != 0)
-        snprintf(reason, sizeof reason, "error %d", err);
-    return arbor_fail(e, err == ENOMEM ? ARBOR_ERR_NOMEM : ARBOR_ERR_IO, "%s: %s: %s", path, what, reason);
-}
-
 /* Only regular files: a FIFO or a device could block or never end. */
 static bool check_regular(const char *path, struct stat *st, arbor_err *e)
 {
     if (stat(path, st) != 0)
-        return loader_fail_errno(e, path, "cannot open", errno);
+        return arbor_fail_errno(e, path, "cannot open", errno);
     if (!S_ISREG(st->st_mode))
         return arbor_fail(e, ARBOR_ERR_IO, "%s: not a regular file", path);
     return true;
@@ -42,7 +34,7 @@ static bool read_plain(const char *path, size_t size, char **data, size_t *len, 
 {
     FILE *f = fopen(path, "rb");
     if (f == NULL)
-        return loader_fail_errno(e, path, "cannot open", errno);
+        return arbor_fail_errno(e, path, "cannot open", errno);
     char *buf = malloc(size ? size : 1);
     if (buf == NULL) {
         fclose(f);
@@ -69,7 +61,7 @@ static bool read_gz(const char *path, size_t max_bytes, char **data, size_t *len
 {
     gzFile f = gzopen(path, "rb");
     if (f == NULL)
-        return loader_fail_errno(e, path, "cannot open", errno ? errno : ENOMEM);
+        return arbor_fail_errno(e, path, "cannot open", errno ? errno : ENOMEM);
     gzbuffer(f, 1u << 17);
     size_t cap = 1u << 20, n = 0;
     char *buf = malloc(cap);
