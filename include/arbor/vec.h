@@ -8,6 +8,7 @@
 #ifndef ARBOR_VEC_H
 #define ARBOR_VEC_H
 
+#include <float.h>
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -27,15 +28,13 @@ static inline arbor_vec3 vec3_cross(arbor_vec3 a, arbor_vec3 b)
     return vec3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
 }
 static inline float vec3_length(arbor_vec3 a) { return sqrtf(vec3_dot(a, a)); }
-/* a / |a|. a is first scaled by the power of two that brings its largest
- * component into [1, 2), so that |a|^2 neither overflows nor underflows:
- * the cross products of edges of huge or tiny triangles (a model at 1e13
- * or 1e-13) normalise too. Scaling by a power of two is exact for every
- * component that stays a normal float, so the result is rounded as the
- * plain formula's wherever that one works. A largest component that is
- * zero, subnormal, not finite or 2^127 and more is left to the plain
- * formula. */
-static inline arbor_vec3 vec3_normalize(arbor_vec3 a)
+/* a / |a| when |a|^2 overflows or underflows (the cross products of edges
+ * of huge or tiny triangles: a model at 1e13 or 1e-13): a is first scaled
+ * by the power of two that brings its largest component into [1, 2),
+ * exactly for every component that stays a normal float. A largest
+ * component that is zero, subnormal, not finite or 2^127 and more is left
+ * to the plain formula. */
+static inline arbor_vec3 vec3_normalize_scaled(arbor_vec3 a)
 {
     float big = fabsf(a.x) > fabsf(a.y) ? fabsf(a.x) : fabsf(a.y);
     big = big > fabsf(a.z) ? big : fabsf(a.z);
@@ -49,6 +48,16 @@ static inline arbor_vec3 vec3_normalize(arbor_vec3 a)
         a = vec3_scale(a, down);
     }
     return vec3_scale(a, 1.0f / vec3_length(a));
+}
+
+/* a / |a|: the plain formula where |a|^2 is a normal float (every vector
+ * of a model of sensible size), else vec3_normalize_scaled. */
+static inline arbor_vec3 vec3_normalize(arbor_vec3 a)
+{
+    float len2 = vec3_dot(a, a);
+    if (len2 >= FLT_MIN && len2 <= FLT_MAX)
+        return vec3_scale(a, 1.0f / sqrtf(len2));
+    return vec3_normalize_scaled(a);
 }
 /* Compare-and-select rather than fminf/fmaxf: those are libm calls unless
  * NaNs are ruled out at compile time, and these run in builders' inner loops.

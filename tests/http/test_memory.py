@@ -139,7 +139,9 @@ def test_memory_tree_in_use_is_not_evicted():
     A, B, C = (p[t] for t in TREES)
     budget = p["models"] + A + B + C // 2 + 64 * 1024
     d = Daemon([our("menger.obj"), our("cornell.obj")],
-               ["--threads", "2", "--prebuild", "none", "--max-memory", str(budget), "--max-pixels", "256M"],
+               # the frame must outlast C's build, and may take minutes under a sanitizer: no timeout cuts it
+               ["--threads", "2", "--prebuild", "none", "--max-memory", str(budget), "--max-pixels", "256M",
+                "--frame-timeout", "0"],
                name="in-use budget daemon")
     try:
         ta, tb, tc = TREES
