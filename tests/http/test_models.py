@@ -56,9 +56,11 @@ def tetra_ply_binary():
 
 
 def upload_daemon():
+    # no --frame-timeout: the frames rendering while a model is replaced or deleted are heavy by design, and
+    # take over a minute under a sanitizer on a slow day
     return shared("upload", lambda: Daemon([our("cornell.obj"), our("sphere.obj")],
-                                           ["--threads", "2", "--max-pixels", "64M"], copy=True,
-                                           name="upload daemon"))
+                                           ["--threads", "2", "--max-pixels", "64M", "--frame-timeout", "0"],
+                                           copy=True, name="upload daemon"))
 
 
 def put(d, name, data, query="", headers=None):
