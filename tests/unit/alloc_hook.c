@@ -90,21 +90,29 @@ __attribute__((constructor)) static void alloc_hook_init(void)
 
 /* ---- the counter ---- */
 
-/* The first frame of stack[0, depth), from `site` on, that is neither the
- * C library (a tsearch, an fopen) nor a sanitizer's runtime (which
- * intercepts tsearch, strdup, ...): the program's code that allocated.
- * NULL when there is none; site itself when the stack does not hold it. */
-static void *program_frame(void *const *stack, int depth, void *site)
+/* Whether code at p is the C library's (a tsearch, an fopen) or a
+ * sanitizer runtime's (which intercepts tsearch, strdup, ...). */
+static bool in_runtime(void *p)
 {
     Dl_info info;
+    return !(dladdr(p, &info) != 0 && info.dli_fname != NULL && strstr(info.dli_fname, "libc.so") == NULL &&
+             strstr(info.dli_fname, "san.so") == NULL);
+}
+
+/* The first frame of stack[0, depth), from `site` on, that is not the
+ * runtime's (in_runtime): the program's code that allocated. NULL when
+ * there is none. When the stack does not hold site (a thread just
+ * starting, whose stack the unwinder cannot walk yet), site itself unless
+ * it is the runtime's. */
+static void *program_frame(void *const *stack, int depth, void *site)
+{
     int i = 0;
     while (i < depth && stack[i] != site)
         i++;
     if (i == depth)
-        return site;
+        return in_runtime(site) ? NULL : site;
     for (; i < depth; i++)
-        if (dladdr(stack[i], &info) != 0 && info.dli_fname != NULL && strstr(info.dli_fname, "libc.so") == NULL &&
-            strstr(info.dli_fname, "san.so") == NULL)
+        if (!in_runtime(stack[i]))
             return stack[i];
     return NULL;
 }
