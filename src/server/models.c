@@ -406,8 +406,10 @@ typedef struct {
 } delete_job;
 
 /* Unloads the model and removes what its upload wrote, with the folder's
- * lock held (folder.h). A folder whose lock cannot be made (read-only)
- * holds no upload's files to remove, and its models are only unloaded. */
+ * lock held (folder.h). A read-only folder holds no upload's files to
+ * remove, and its models are only unloaded. In a folder that can be
+ * written, a lock that cannot be taken is a 507 and the model stays: the
+ * files left behind would load it again at the next request. */
 static void delete_run(void *ctx, uint32_t task)
 {
     (void)task;
@@ -418,7 +420,9 @@ static void delete_run(void *ctx, uint32_t task)
     arbor_err err;
     int lock = -1;
     bool locked = dir != NULL && folder_lock_take(dir, &lock, why, sizeof why);
-    if (!arbor_store_remove_model(r->srv->store, j->name, &err)) {
+    if (dir != NULL && !locked && access(dir, W_OK) == 0) {
+        http_reply_error(r, 507, "insufficient_storage", "%s", why);
+    } else if (!arbor_store_remove_model(r->srv->store, j->name, &err)) {
         http_reply_err(r, &err);
     } else {
         /* An uploaded model's files go with it, or the next start would load

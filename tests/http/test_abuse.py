@@ -13,6 +13,7 @@ import contextlib
 import os
 import resource
 import select
+import shutil
 import socket
 import statistics
 import subprocess
@@ -410,6 +411,29 @@ def test_abuse_disk_full_on_upload():
             base.back("disk full on upload")
         finally:
             d.stop_clean()
+
+
+@test
+def test_abuse_folder_lock_unusable():
+    """A writable models folder whose lock cannot be opened (.arbord.lock made a folder): DELETE of an
+    uploaded model is 507 and the model stays loaded with its files, since they would load it again;
+    once the lock works, the DELETE goes through and removes them."""
+    mnt = tempfile.mkdtemp(prefix="arbor-lock-")
+    d = Daemon(models_dir=mnt, args=["--threads", "2"], name="unusable-lock daemon")
+    try:
+        expect_json(d.req("PUT", "/api/models/first", body=b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"), 201)
+        lock = os.path.join(mnt, ".arbord.lock")
+        os.unlink(lock)
+        os.mkdir(lock)
+        expect_error(d.req("DELETE", "/api/models/first"), 507, "insufficient_storage")
+        eq(d.model("first")["triangles"], 1, "first still loaded")
+        eq(sorted(os.listdir(mnt)), [".arbord.lock", ".first.upload", "first.obj"], "files after the refused DELETE")
+        os.rmdir(lock)
+        eq(expect_json(d.req("DELETE", "/api/models/first")), {"deleted": "first"}, "DELETE with the lock back")
+        eq(sorted(os.listdir(mnt)), [".arbord.lock"], "files after the DELETE")
+    finally:
+        d.stop_clean()
+        shutil.rmtree(mnt)
 
 
 @test
