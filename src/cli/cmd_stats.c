@@ -55,105 +55,123 @@ static bool print_json(const char *model, uint32_t ntris, arbor_accel_kind kind,
     return true;
 }
 
-int cmd_stats(int argc, char **argv)
+typedef struct {
+    const char *model;
+    bool json;
+    int threads;
+    bool all_kinds, all_builders;
+    arbor_accel_kind kind;
+    arbor_builder builder;
+} stats_args;
+
+/* Fills *a from the command line; returns -1 to go on, else the exit
+ * status (0 after --help, 2 for a usage error). */
+static int parse_args(int argc, char **argv, stats_args *a)
 {
-    const char *model = NULL, *accel = "bvh", *builder = "all";
-    bool json = false;
-    int threads = 0;
+    const char *accel = "bvh", *builder = "all";
+    *a = (stats_args){.model = NULL, .kind = ARBOR_ACCEL_BVH, .builder = ARBOR_BUILD_SAH};
     cli_seen seen = {.n = 0};
     for (int i = 1; i < argc; i++) {
-        const char *a = argv[i];
-        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+        const char *opt = argv[i];
+        if (strcmp(opt, "--help") == 0 || strcmp(opt, "-h") == 0) {
             usage(stdout);
             return 0;
-        } else if (!cli_first("stats", &seen, a)) {
+        } else if (!cli_first("stats", &seen, opt)) {
             return 2;
-        } else if (strcmp(a, "--json") == 0) {
-            json = true;
-        } else if (strcmp(a, "--model") == 0) {
-            const char *v = cli_value("stats", argc, argv, &i);
-            if ((model = v) == NULL) return 2;
-        } else if (strcmp(a, "--accel") == 0) {
+        } else if (strcmp(opt, "--json") == 0) {
+            a->json = true;
+        } else if (strcmp(opt, "--model") == 0) {
+            if ((a->model = cli_value("stats", argc, argv, &i)) == NULL) return 2;
+        } else if (strcmp(opt, "--accel") == 0) {
             if ((accel = cli_value("stats", argc, argv, &i)) == NULL) return 2;
-        } else if (strcmp(a, "--builder") == 0) {
+        } else if (strcmp(opt, "--builder") == 0) {
             if ((builder = cli_value("stats", argc, argv, &i)) == NULL) return 2;
-        } else if (strcmp(a, "--threads") == 0) {
+        } else if (strcmp(opt, "--threads") == 0) {
             const char *v = cli_value("stats", argc, argv, &i);
-            if (v == NULL || !cli_int("stats", "--threads", v, 0, 1024, &threads)) return 2;
+            if (v == NULL || !cli_int("stats", "--threads", v, 0, 1024, &a->threads)) return 2;
         } else {
-            fprintf(stderr, "arbord stats: unknown option '%s'\n", a);
+            fprintf(stderr, "arbord stats: unknown option '%s'\n", opt);
             usage(stderr);
             return 2;
         }
     }
-    if (model == NULL) {
+    if (a->model == NULL) {
         fprintf(stderr, "arbord stats: --model FILE is required\n");
         usage(stderr);
         return 2;
     }
-    bool all_kinds = strcmp(accel, "all") == 0, all_builders = strcmp(builder, "all") == 0;
-    arbor_accel_kind kind = ARBOR_ACCEL_BVH;
-    arbor_builder one_builder = ARBOR_BUILD_SAH;
-    if (!all_kinds && !arbor_accel_kind_parse(accel, &kind)) {
+    a->all_kinds = strcmp(accel, "all") == 0;
+    a->all_builders = strcmp(builder, "all") == 0;
+    if (!a->all_kinds && !arbor_accel_kind_parse(accel, &a->kind)) {
         fprintf(stderr, "arbord stats: unknown accel '%s' (bvh, kd, all)\n", accel);
         return 2;
     }
-    if (!all_builders && !arbor_builder_parse(builder, &one_builder)) {
+    if (!a->all_builders && !arbor_builder_parse(builder, &a->builder)) {
         fprintf(stderr, "arbord stats: unknown builder '%s' (spatial, median, mean, sah, all)\n", builder);
         return 2;
     }
+    return -1;
+}
 
+/* Builds one tree on the pool and prints its rows; false (said on stderr)
+ * when the build fails or the output runs out of memory. */
+static bool stats_one(const stats_args *a, const arbor_mesh *mesh, arbor_pool *pool, arbor_accel_kind kind,
+                      arbor_builder b)
+{
+    arbor_build_opts opts;
+    arbor_build_opts_init(&opts, kind, b);
+    opts.threads = a->threads;
+    opts.pool = pool;
+    arbor_err err;
+    arbor_accel *tree = arbor_accel_build(mesh, &opts, &err);
+    if (tree == NULL) {
+        fprintf(stderr, "arbord stats: %s %s: %s\n", arbor_accel_kind_name(kind), arbor_builder_name(b), err.msg);
+        return false;
+    }
+    arbor_tree_stats s;
+    arbor_accel_stats(tree, &s);
+    bool ok = true;
+    if (!a->json)
+        print_rows(kind, b, &s);
+    else
+        ok = print_json(a->model, mesh->ntris, kind, b, &s);
+    arbor_accel_free(tree);
+    if (!ok)
+        fprintf(stderr, "arbord stats: out of memory\n");
+    return ok;
+}
+
+int cmd_stats(int argc, char **argv)
+{
+    stats_args a;
+    int code = parse_args(argc, argv, &a);
+    if (code >= 0)
+        return code;
     arbor_mesh mesh;
     arbor_err err;
-    if (!arbor_load_model(model, &mesh, &err)) {
+    if (!arbor_load_model(a.model, &mesh, &err)) {
         fprintf(stderr, "arbord stats: %s\n", err.msg);
         return 1;
     }
     for (uint32_t w = 0; w < mesh.nwarnings; w++)
         fprintf(stderr, "arbord stats: warning: %s\n", mesh.warnings[w]);
-    if (!json) {
-        printf("model %s: %u triangles, %u vertices\n", model, mesh.ntris, mesh.nverts);
+    if (!a.json) {
+        printf("model %s: %u triangles, %u vertices\n", a.model, mesh.ntris, mesh.nverts);
         print_header();
     }
     /* one pool for every build of the command */
-    arbor_pool *pool = arbor_pool_create(threads, &err);
+    arbor_pool *pool = arbor_pool_create(a.threads, &err);
     if (pool == NULL) {
         fprintf(stderr, "arbord stats: %s\n", err.msg);
         arbor_mesh_free(&mesh);
         return 1;
     }
-    int status = 0;
-    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT && status == 0; k++) {
-        if (!all_kinds && k != (int)kind)
-            continue;
-        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++) {
-            if (!all_builders && b != (int)one_builder)
-                continue;
-            arbor_build_opts opts;
-            arbor_build_opts_init(&opts, (arbor_accel_kind)k, (arbor_builder)b);
-            opts.threads = threads;
-            opts.pool = pool;
-            arbor_accel *tree = arbor_accel_build(&mesh, &opts, &err);
-            if (tree == NULL) {
-                fprintf(stderr, "arbord stats: %s %s: %s\n", arbor_accel_kind_name((arbor_accel_kind)k),
-                        arbor_builder_name((arbor_builder)b), err.msg);
-                status = 1;
-                break;
-            }
-            arbor_tree_stats s;
-            arbor_accel_stats(tree, &s);
-            if (!json)
-                print_rows((arbor_accel_kind)k, (arbor_builder)b, &s);
-            else if (!print_json(model, mesh.ntris, (arbor_accel_kind)k, (arbor_builder)b, &s))
-                status = 1;
-            arbor_accel_free(tree);
-            if (status != 0) {
-                fprintf(stderr, "arbord stats: out of memory\n");
-                break;
-            }
-        }
-    }
+    bool ok = true;
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT && ok; k++)
+        for (int b = 0; b < ARBOR_BUILDER_COUNT && ok; b++)
+            if ((a.all_kinds || k == (int)a.kind) && (a.all_builders || b == (int)a.builder))
+                ok = stats_one(&a, &mesh, pool, (arbor_accel_kind)k, (arbor_builder)b);
     arbor_pool_destroy(pool);
     arbor_mesh_free(&mesh);
-    return status;
+    return ok ? 0 : 1;
 }
