@@ -508,10 +508,11 @@ void arbor_store_usage_of(arbor_store *s, arbor_store_usage *u)
 
 /* ---- builds ---- */
 
-static void build_run(void *ctx, uint32_t task)
+/* Builds b's tree, outside the store's lock, as a tree not yet filed (its
+ * bytes counted, one reference held); NULL with *err set when the build
+ * fails, is cancelled or the tree cannot be had. */
+static arbor_tree *build_tree(build *b, arbor_tree_stats *st, arbor_err *err)
 {
-    (void)task;
-    build *b = ctx;
     arbor_store *s = b->store;
     arbor_build_opts opts;
     arbor_build_opts_init(&opts, b->kind, b->builder);
@@ -522,28 +523,38 @@ static void build_run(void *ctx, uint32_t task)
     opts.pool = s->config.pool;
     opts.cancel = &b->cancel;
     opts.drop_binary = true; /* rays, boxes and ray paths all use the wide tree */
-    arbor_err err;
-    arbor_err_clear(&err);
-    arbor_accel *accel = atomic_load(&b->cancel) ? NULL : arbor_accel_build(&b->model->mesh, &opts, &err);
-    if (accel == NULL && err.status == ARBOR_OK)
-        arbor_fail(&err, ARBOR_ERR_CANCELLED, "build cancelled");
-    arbor_tree *t = NULL;
-    arbor_tree_stats st = {0};
-    if (accel != NULL) {
-        arbor_accel_stats(accel, &st);
-        t = calloc(1, sizeof *t);
-        if (t == NULL) {
-            arbor_accel_free(accel);
-            arbor_fail(&err, ARBOR_ERR_NOMEM, "out of memory filing the tree");
-        } else {
-            t->accel = accel;
-            t->bytes = st.bytes;
-            t->model = b->model;
-            arbor_model_retain(b->model);
-            atomic_init(&t->refs, 1);
-            atomic_fetch_add(&s->tree_bytes, t->bytes);
-        }
+    arbor_err_clear(err);
+    arbor_accel *accel = atomic_load(&b->cancel) ? NULL : arbor_accel_build(&b->model->mesh, &opts, err);
+    if (accel == NULL) {
+        if (err->status == ARBOR_OK)
+            arbor_fail(err, ARBOR_ERR_CANCELLED, "build cancelled");
+        return NULL;
     }
+    arbor_accel_stats(accel, st);
+    arbor_tree *t = calloc(1, sizeof *t);
+    if (t == NULL) {
+        arbor_accel_free(accel);
+        arbor_fail(err, ARBOR_ERR_NOMEM, "out of memory filing the tree");
+        return NULL;
+    }
+    t->accel = accel;
+    t->bytes = st->bytes;
+    t->model = b->model;
+    arbor_model_retain(b->model);
+    atomic_init(&t->refs, 1);
+    atomic_fetch_add(&s->tree_bytes, t->bytes);
+    return t;
+}
+
+/* Files the tree in its slot (or the failure), then tells the waiters. */
+static void build_run(void *ctx, uint32_t task)
+{
+    (void)task;
+    build *b = ctx;
+    arbor_store *s = b->store;
+    arbor_err err;
+    arbor_tree_stats st = {0};
+    arbor_tree *t = build_tree(b, &st, &err);
 
     dropped d = {0};
     pthread_mutex_lock(&s->lock);
