@@ -261,6 +261,75 @@ def test_killed_node_loses_no_region_and_rejoins_after_building():
         os.unlink(os.path.join(c.state, "models", "dragon.obj.gz"))
 
 
+@test
+def test_nginx_lends_its_token_to_tools_and_its_own_pages_only():
+    c = cluster()
+    body, ctype = harness.multipart([("model", "lent.obj", "text/plain", TETRA_OBJ)])
+    own = "http://127.0.0.1:%d" % c.port
+
+    def upload(origin):
+        h = {"Content-Type": ctype}
+        if origin:
+            h["Origin"] = origin
+        return c.lb("POST", "/api/models/lent?replace=1", body=body, headers=h)
+
+    # A form another site's page posts here needs no CORS preflight: it must not get the token.
+    for origin in ("http://evil.example", "null", "http://evil.example:%d" % c.port):
+        expect_error(upload(origin), 401, "unauthorized")
+    expect_error(c.lb("GET", "/api/models/lent"), 404, "not_found")
+    eq(expect_ok(upload(own), 201).json()["triangles"], 4, "an upload from the cluster's own page")
+    eq(expect_ok(upload(None)).json()["triangles"], 4, "an upload from a tool (no Origin)")
+    expect_ok(c.lb("DELETE", "/api/models/lent"))
+
+
+@test
+def test_bench_job_is_polled_and_cancelled_on_the_node_that_runs_it():
+    c = cluster()
+    # Every node numbers its own jobs: a job of each node's own first, so that
+    # a poll passed to the wrong node finds another job of the same id or none.
+    auth = {"Authorization": "Bearer " + c.token}
+    for i in range(3):
+        expect_ok(c.node(i, "POST", "/api/bench", js={"model": "cornell", "accel": ["bvh"], "builder": ["median"],
+                                                       "runs": 1}, headers=auth), 202)
+    r = expect_ok(c.lb("POST", "/api/bench", js={"model": "sphere", "accel": ["bvh", "kd"], "builder": ["sah"],
+                                                  "runs": 3}), 202)
+    job = r.json()["id"]
+    for _ in range(9):
+        r = c.lb("GET", "/api/jobs/%s" % job)
+        expect_ok(r)
+        eq((r.json()["id"], r.json()["model"]), (job, "sphere"), "job %s polled through nginx" % job)
+    r = expect_ok(c.lb("DELETE", "/api/jobs/%s" % job))
+    eq(r.json()["model"], "sphere", "the job cancelled through nginx")
+    end = time.time() + 30
+    while c.lb("GET", "/api/jobs/%s" % job).json()["state"] not in ("cancelled", "done"):
+        check(time.time() < end, "job %s never ended after its DELETE through nginx" % job)
+        time.sleep(0.1)
+
+
+@test
+def test_errors_nginx_makes_are_the_apis_json():
+    c = cluster()
+    # A body over client_max_body_size (1 MB outside uploads).
+    expect_error(c.lb("POST", "/api/render", body=b" " * (1100 * 1024),
+                      headers={"Content-Type": "application/json"}), 413, "too_large")
+    # More frames at once than the nodes' queues hold (3 x (1 + --queue 16)):
+    # nodes that answer 503 are left out for fail_timeout, and then nginx
+    # itself answers; each answer is a frame or the API's 503 busy.
+    before = len(c.access_log())
+    rs = harness.parallel(150, lambda i: c.lb("GET", "/api/render?model=menger&width=384&height=384&seed=%d" % i))
+    busy = 0
+    for r in rs:
+        check(not isinstance(r, Exception), "a frame of the burst: %r" % r)
+        if r.status != 200:
+            expect_error(r, 503, "busy")
+            check(r.header("Retry-After"), "%s: a 503 with no Retry-After" % r.req)
+            busy += 1
+    check(busy > 0, "150 frames at once all answered 200: the burst overflowed no queue, so it tested nothing")
+    check(any(re.search(r"upstream=(\S+, )*arbord ", l) for l in c.access_log()[before:]),
+          "no frame of the burst was answered by nginx itself (no live node): %d busy" % busy)
+    time.sleep(4)  # fail_timeout (3 s): the nodes are back for the next test
+
+
 def _listening(c, i):
     try:
         return c.node(i, "GET", "/healthz", timeout=2).status == 200
