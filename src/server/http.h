@@ -171,11 +171,13 @@ bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_
  * no such model, here or in the folder) or suspended while the model is
  * loaded from the folder, after which r's route runs again. sync_models
  * does the same for every model (GET /api/models): false when r was
- * answered or suspended. sync_in_folder: whether the folder has a file for
- * `name`. */
+ * answered or suspended. sync_exists: whether model `name` exists as the
+ * folders have it: a file in the shared folder, or a model in the store
+ * whose file is still there (or that came from none); a model another
+ * daemon deleted does not, though this one has not unloaded it yet. */
 arbor_model *sync_model(http_req *r, const char *name);
 bool sync_models(http_req *r);
-bool sync_in_folder(const arbor_server *s, const char *name);
+bool sync_exists(arbor_server *s, const char *name);
 
 /* server.c: frames and rays are refused (503) until the daemon is ready,
  * so that a load balancer passes them to a node that is; false with the

@@ -277,16 +277,6 @@ static void strip_dir(char *msg, const char *dir)
     }
 }
 
-/* Whether model `name` exists: in this daemon or in the shared folder
- * (uploaded through another daemon). */
-static bool model_exists(arbor_server *s, const char *name)
-{
-    arbor_model *old = arbor_store_acquire_model(s->store, name);
-    bool exists = old != NULL || sync_in_folder(s, name);
-    arbor_model_release(old);
-    return exists;
-}
-
 /* Saves the loaded upload into the folder and adds it to the store, with
  * the folder's lock held: an upload or DELETE of the same name, through
  * this daemon or another, comes wholly before or after. Replies. */
@@ -296,7 +286,7 @@ static void upload_publish(upload_job *j, arbor_mesh *mesh)
     arbor_server *s = r->srv;
     const char *dir = s->config.upload_dir;
     char file[PATH_MAX], why[PATH_MAX + 256];
-    bool exists = model_exists(s, j->name);
+    bool exists = sync_exists(s, j->name);
     folder_result saved = FOLDER_FAILED;
     uint64_t version = 0, stamp = 0;
     arbor_err err;

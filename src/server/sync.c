@@ -61,13 +61,6 @@ static bool folder_file(const arbor_server *s, const char *name, char *path, siz
     return false;
 }
 
-bool sync_in_folder(const arbor_server *s, const char *name)
-{
-    char path[PATH_MAX];
-    uint64_t stamp;
-    return folder_file(s, name, path, sizeof path, &stamp);
-}
-
 /* What the folder says of `name`, whose model in the store is m (NULL:
  * none). For SYNC_LOAD, path and *stamp are the file to read. The shared
  * folder's file comes first; a model read from another --models folder is
@@ -84,6 +77,16 @@ static sync_state compare(const arbor_server *s, const char *name, arbor_model *
         return SYNC_GONE;
     snprintf(path, cap, "%s", arbor_model_file(m));
     return known == *stamp ? SYNC_CURRENT : SYNC_LOAD;
+}
+
+bool sync_exists(arbor_server *s, const char *name)
+{
+    char path[PATH_MAX];
+    uint64_t stamp;
+    arbor_model *m = arbor_store_acquire_model(s->store, name);
+    bool exists = compare(s, name, m, path, sizeof path, &stamp) != SYNC_GONE;
+    arbor_model_release(m);
+    return exists;
 }
 
 /* ---- loading, on a worker ---- */

@@ -430,6 +430,24 @@ def test_delete_keeps_a_file_the_operator_put_in_an_uploads_place():
 
 
 @test
+def test_replace_of_a_model_deleted_through_another_daemon_is_new():
+    """A model deleted through another daemon sharing the folder is gone for this one too, though it has
+    not unloaded it yet: an upload of its name with ?replace=1 adds it (201), as on a fresh daemon."""
+    d = upload_daemon()
+    expect_json(put(d, "elsewhere", TETRA_OBJ), 201)
+    eq(d.model("elsewhere")["triangles"], 4, "elsewhere loaded here")
+    d2 = Daemon(args=["--threads", "1", "--prebuild", "none"], models_dir=d.models_dir, name="second daemon")
+    try:
+        eq(expect_json(d2.req("DELETE", "/api/models/elsewhere")), {"deleted": "elsewhere"}, "DELETE through d2")
+        d2.stop_clean()
+    finally:
+        d2.cleanup()
+    j = expect_json(put(d, "elsewhere", CUBE_OBJ, "?replace=1"), 201)
+    eq(j["triangles"], 12, "the new elsewhere")
+    expect_json(d.req("DELETE", "/api/models/elsewhere"))
+
+
+@test
 def test_uploads_of_one_new_name_at_once():
     """Eight uploads of one new name at once: one is 201, the rest 409, and the model and its file stay."""
     d = upload_daemon()
