@@ -14,6 +14,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/random.h>
+#include <time.h>
+#include <unistd.h>
 
 #include "arbor/bench.h"
 #include "arbor/report.h"
@@ -131,13 +134,25 @@ static void *jobs_thread(void *arg)
     return NULL;
 }
 
+/* Ids name the jobs of one run of one daemon: they count up from a random
+ * start, so that an id kept across a restart, or asked of another daemon
+ * behind the same load balancer, finds no job (404) rather than another
+ * client's. Below 2^53, so that a client may read one as a number. */
+static uint64_t job_first_id(void)
+{
+    uint64_t r;
+    if (getrandom(&r, sizeof r, GRND_NONBLOCK) != (ssize_t)sizeof r)
+        r = (uint64_t)time(NULL) << 22 ^ (uint64_t)getpid();
+    return 1 + (r & ((UINT64_C(1) << 52) - 1));
+}
+
 job_table *jobs_create(arbor_pool *pool)
 {
     job_table *t = calloc(1, sizeof *t);
     if (t == NULL)
         return NULL;
     t->pool = pool;
-    t->next_id = 1;
+    t->next_id = job_first_id();
     pthread_mutex_init(&t->lock, NULL);
     pthread_cond_init(&t->work, NULL);
     if (pthread_create(&t->thread, NULL, jobs_thread, t) != 0) {

@@ -285,8 +285,8 @@ def test_nginx_lends_its_token_to_tools_and_its_own_pages_only():
 @test
 def test_bench_job_is_polled_and_cancelled_on_the_node_that_runs_it():
     c = cluster()
-    # Every node numbers its own jobs: a job of each node's own first, so that
-    # a poll passed to the wrong node finds another job of the same id or none.
+    # A job of each node's own first, so that every node has jobs: a poll
+    # passed to the wrong node finds none of that id (ids start at random).
     auth = {"Authorization": "Bearer " + c.token}
     for i in range(3):
         expect_ok(c.node(i, "POST", "/api/bench", js={"model": "cornell", "accel": ["bvh"], "builder": ["median"],

@@ -2,7 +2,7 @@
 import json
 import time
 
-from harness import check, eq, expect_json, fail, main_daemon, our, run_cli, test
+from harness import Daemon, check, eq, expect_error, expect_json, fail, main_daemon, our, run_cli, test
 
 JOB_KEYS = {"id", "model", "state", "progress", "elapsed_ms", "rows", "error"}
 
@@ -75,6 +75,26 @@ def test_bench_job_beside_robust_embree():
           % (tree["primary_hits"], peer["primary_hits"]))
     for s in ("primary", "diffuse", "shadow"):
         check(tree[s + "_ratio"] > 0, "%s_ratio %r" % (s, tree[s + "_ratio"]))
+
+
+@test
+def test_bench_job_ids_name_one_daemons_jobs():
+    """Two daemons (as behind one load balancer, or one restarted) each run a job: the ids differ, and
+    each daemon answers the other's id with 404, not with its own job of that number."""
+    d = main_daemon()
+    body = {"model": "cornell", "accel": ["bvh"], "builder": ["median"], "runs": 1}
+    a = expect_json(d.post("/api/bench", body), 202)["id"]
+    d2 = Daemon([our("cornell.obj")], ["--threads", "1"], name="second bench daemon")
+    try:
+        b = expect_json(d2.post("/api/bench", body), 202)["id"]
+        check(a != b, "both daemons named their first job %r" % a)
+        expect_error(d2.get("/api/jobs/%s" % a), 404, "not_found")
+        expect_error(d.get("/api/jobs/%s" % b), 404, "not_found")
+        _poll(d2, b, ("done", "failed", "cancelled"), 60)
+        d2.stop_clean()
+    finally:
+        d2.cleanup()
+    _poll(d, a, ("done", "failed", "cancelled"), 60)
 
 
 @test
