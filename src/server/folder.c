@@ -283,8 +283,9 @@ static folder_result plan_save(const char *dir, const char *stage, const char *m
     return res;
 }
 
-folder_result folder_save_upload(const char *dir, const char *name, const char *stage, const char *model, char *file,
-                                 size_t cap, char *err, size_t errcap)
+folder_result folder_save_upload(const char *dir, const char *name, const char *stage, const char *model,
+                                 folder_admit_fn admit, void *admit_ctx, char *file, size_t cap, char *err,
+                                 size_t errcap)
 {
     const char *ext = folder_model_exts[0];
     for (int i = 0; i < FOLDER_NEXTS; i++)
@@ -297,6 +298,9 @@ folder_result folder_save_upload(const char *dir, const char *name, const char *
     folder_result res = plan_save(dir, stage, model, final, &before, &now, err, errcap);
     if (res != FOLDER_SAVED)
         return res;
+    snprintf(file, cap, "%s/%s", dir, final);
+    if (!admit(admit_ctx, file))
+        return FOLDER_REFUSED;
     pending = now;
     for (uint32_t i = 0; i < before.n; i++)
         if (entry_still_own(dir, &before.e[i]))
@@ -320,7 +324,6 @@ folder_result folder_save_upload(const char *dir, const char *name, const char *
             snprintf(dst, sizeof dst, "%s/%s%s", dir, name, folder_model_exts[i]);
             unlink(dst); /* one model file per name */
         }
-    snprintf(file, cap, "%s/%s", dir, final);
     return FOLDER_SAVED;
 }
 

@@ -35,17 +35,26 @@ bool folder_is_model_file(const char *file);
 bool folder_lock_take(const char *dir, int *fd, char *err, size_t errcap);
 void folder_lock_drop(int fd);
 
-typedef enum { FOLDER_SAVED, FOLDER_CONFLICT, FOLDER_FAILED } folder_result;
+typedef enum { FOLDER_SAVED, FOLDER_CONFLICT, FOLDER_REFUSED, FOLDER_FAILED } folder_result;
+
+/* Asked once an upload is planned, before anything is written, with the
+ * path its model file will have: false refuses the upload (FOLDER_REFUSED),
+ * and the folder stays as it was. */
+typedef bool (*folder_admit_fn)(void *ctx, const char *file);
 
 /* Saves an upload of model `name` from stage (a folder of its parts: the
  * file `model`, then material libraries) into dir, with the lock held: the
  * model as NAME.EXT (NAME's files of the other extensions removed), each
  * material library under its own name, and the record. A material library
  * that would overwrite a file of another content that NAME's record does
- * not own is FOLDER_CONFLICT, and nothing is written. On FOLDER_SAVED
- * *file is the model's path. err says what went wrong otherwise. */
-folder_result folder_save_upload(const char *dir, const char *name, const char *stage, const char *model, char *file,
-                                 size_t cap, char *err, size_t errcap);
+ * not own is FOLDER_CONFLICT, and nothing is written; then admit decides
+ * (FOLDER_REFUSED: nothing written). On FOLDER_SAVED *file is the model's
+ * path. err says what went wrong on FOLDER_CONFLICT and FOLDER_FAILED (the
+ * files written so far stay, named by the record: folder_remove_upload
+ * removes them). */
+folder_result folder_save_upload(const char *dir, const char *name, const char *stage, const char *model,
+                                 folder_admit_fn admit, void *admit_ctx, char *file, size_t cap, char *err,
+                                 size_t errcap);
 
 /* Removes, with the lock held, the files an upload of `name` wrote that no
  * other record names, and its record. A model the operator put in the

@@ -277,6 +277,26 @@ static void strip_dir(char *msg, const char *dir)
     }
 }
 
+/* The store takes an upload's model once the folder's plan holds and
+ * before any file is written (folder.h): a model the store has no room for
+ * (507) leaves the folder as it was, the files of the model it would have
+ * replaced included. */
+typedef struct {
+    arbor_store *store;
+    const char *name;
+    arbor_mesh *mesh;
+    bool admitted;
+    uint64_t version;
+    arbor_err err;
+} upload_admit;
+
+static bool admit_upload(void *ctx, const char *file)
+{
+    upload_admit *a = ctx;
+    a->admitted = arbor_store_add_model(a->store, a->name, file, a->mesh, ARBOR_ADD_REPLACE, &a->version, &a->err);
+    return a->admitted;
+}
+
 /* Saves the loaded upload into the folder and adds it to the store, with
  * the folder's lock held: an upload or DELETE of the same name, through
  * this daemon or another, comes wholly before or after. Replies. */
@@ -286,30 +306,36 @@ static void upload_publish(upload_job *j, arbor_mesh *mesh)
     arbor_server *s = r->srv;
     const char *dir = s->config.upload_dir;
     char file[PATH_MAX], why[PATH_MAX + 256];
-    bool exists = sync_exists(s, j->name);
+    bool exists = sync_exists(s, j->name), filed = false;
+    upload_admit a = {.store = s->store, .name = j->name, .mesh = mesh};
     folder_result saved = FOLDER_FAILED;
-    uint64_t version = 0, stamp = 0;
-    arbor_err err;
+    uint64_t stamp = 0;
     if (exists && !j->replace) {
         http_reply_error(r, 409, "conflict", "model '%s' exists (replace it with ?replace=1)", j->name);
-    } else if ((saved = folder_save_upload(dir, j->name, r->parts->dir, r->parts->model, file, sizeof file, why,
-                                           sizeof why)) != FOLDER_SAVED) {
+    } else if ((saved = folder_save_upload(dir, j->name, r->parts->dir, r->parts->model, admit_upload, &a, file,
+                                           sizeof file, why, sizeof why)) == FOLDER_REFUSED) {
+        http_reply_err(r, &a.err);
+    } else if (saved != FOLDER_SAVED) {
         http_reply_error(r, saved == FOLDER_CONFLICT ? 409 : 507,
                          saved == FOLDER_CONFLICT ? "conflict" : "insufficient_storage", "%s", why);
     } else if ((stamp = arbor_file_stamp(file)) == 0) { /* taken at once: what sync.c compares */
         http_reply_error(r, 409, "conflict", "model '%s' was removed from the folder as it was added", j->name);
-    } else if (!arbor_store_add_model(s->store, j->name, file, mesh, ARBOR_ADD_REPLACE, &version, &err)) {
-        saved = FOLDER_FAILED; /* no room: a new model leaves no file, or other daemons would load it */
-        http_reply_err(r, &err);
     } else {
         arbor_model *m = arbor_store_acquire_model(s->store, j->name);
-        if (m != NULL && arbor_model_version(m) == version)
+        if (m != NULL && arbor_model_version(m) == a.version)
             arbor_model_set_stamp(m, stamp);
         if (m != NULL)
             http_reply_json(r, exists ? 200 : 201, model_json(s, m));
         else
             http_reply_error(r, 409, "conflict", "model '%s' was deleted as it was added", j->name);
         arbor_model_release(m);
+        filed = true;
+    }
+    if (a.admitted && !filed) {
+        /* The store holds a model whose file is not in the folder: it goes,
+         * and the next request for the name loads what the folder has. */
+        arbor_err gone;
+        arbor_store_remove_model(s->store, j->name, &gone);
     }
     if (saved == FOLDER_FAILED && !exists)
         folder_remove_upload(dir, j->name); /* what was written of it */

@@ -131,6 +131,30 @@ def test_memory_tree_that_cannot_fit_507():
 
 
 @test
+def test_memory_replace_that_cannot_fit_keeps_the_old_model():
+    """An upload replacing a model, refused for memory (507), leaves the folder as it was and the old
+    model loaded: the store takes a model before any file of it is written."""
+    p = probe()
+    cornell = p["models"] - p["menger"]
+    d = Daemon([our("cornell.obj")], ["--threads", "2", "--prebuild", "none", "--max-memory", str(cornell + 1024 * 1024)],
+               copy=True, name="replace budget daemon")
+    try:
+        before = {f: open(os.path.join(d.models_dir, f), "rb").read() for f in os.listdir(d.models_dir)}
+        r = d.req("PUT", "/api/models/cornell?replace=1", body=grid_obj(300),
+                  headers={"Content-Type": "application/octet-stream"})
+        expect_error(r, 507, "insufficient_memory")
+        after = {f: open(os.path.join(d.models_dir, f), "rb").read() for f in os.listdir(d.models_dir)
+                 if f != ".arbord.lock"}
+        eq(sorted(after), sorted(before), "files after the refused replace")
+        check(after == before, "a file changed in the refused replace")
+        eq(d.model("cornell")["triangles"], 36, "cornell after the refused replace")
+        expect_ok(d.post("/api/render", {"model": "cornell", "width": 16, "height": 16}))
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+@test
 def test_memory_tree_in_use_is_not_evicted():
     """The least recently built tree is rendering a frame: eviction passes it over and takes the next."""
     import threading
