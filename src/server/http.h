@@ -28,6 +28,7 @@ typedef struct http_req http_req;
 typedef struct render_req render_req;
 typedef struct job_table job_table;
 typedef struct sync_load sync_load;
+typedef struct sync_bad sync_bad;
 
 
 struct arbor_server {
@@ -53,6 +54,7 @@ struct arbor_server {
     uint32_t nframes;               /* its length: admission counts it */
     uint32_t inflight;              /* requests suspended, waiting for a worker */
     sync_load *loads;               /* models being loaded from the shared folder (sync.c) */
+    sync_bad *bad;                  /* folder files that failed to load (sync.c) */
     uint64_t next_request_id;
 
     pthread_t reaper;               /* cancels frames past --frame-timeout */
@@ -178,6 +180,7 @@ bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_
 arbor_model *sync_model(http_req *r, const char *name);
 bool sync_models(http_req *r);
 bool sync_exists(arbor_server *s, const char *name);
+void sync_forget(arbor_server *s); /* frees the record of files that failed to load */
 
 /* server.c: frames and rays are refused (503) until the daemon is ready,
  * so that a load balancer passes them to a node that is; false with the

@@ -1010,6 +1010,7 @@ void arbor_server_stop(arbor_server *s)
         free(s->pending[i]);
     free(s->pending);
     free(s->token);
+    sync_forget(s);
     pthread_cond_destroy(&s->reaper_wake);
     pthread_cond_destroy(&s->idle);
     pthread_mutex_destroy(&s->lock);

@@ -14,11 +14,18 @@
  *     unloaded and answered 404.
  * However many requests wait for one name, it is loaded once.
  *
+ * A file that fails to load is remembered with its stamp (a sync_bad) and
+ * not read again until it changes: GET /api/models lists the others, and a
+ * request for that name is answered the load's error; a model the store
+ * already had under that name stays. A load refused for memory is tried
+ * again after SYNC_RETRY_MS, since room may have been made meanwhile.
+ *
  * The checks are stat(2) calls on the polling thread (metadata only: no
  * file is read there); reading and parsing happen on the pool.
  */
 #include <dirent.h>
 #include <limits.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -47,7 +54,20 @@ struct sync_load {
     struct sync_load *next;   /* srv->loads, protected by srv->lock */
 };
 
-typedef enum { SYNC_CURRENT, SYNC_LOAD, SYNC_GONE } sync_state;
+/* How long a load refused for memory stands before it is tried again. */
+#define SYNC_RETRY_MS 5000.0
+
+struct sync_bad {
+    char name[ARBOR_MODEL_NAME_MAX + 1];
+    char path[PATH_MAX];
+    uint64_t stamp;           /* of path when it failed */
+    double retry_ms;          /* arbor_now_ms() from which it is read again */
+    arbor_err err;
+    struct sync_bad *next;    /* srv->bad, protected by srv->lock */
+};
+
+/* SYNC_BAD: the folder's file failed to load and has not changed since. */
+typedef enum { SYNC_CURRENT, SYNC_LOAD, SYNC_GONE, SYNC_BAD } sync_state;
 
 
 /* The file of model `name` in the shared folder and its stamp, if any. */
@@ -89,6 +109,78 @@ bool sync_exists(arbor_server *s, const char *name)
     return exists;
 }
 
+/* ---- files that failed to load ---- */
+
+/* Remembers that l's file failed with e, in place of what was known of its
+ * name; false when that cannot be had (out of memory). */
+static bool bad_remember(const sync_load *l, const arbor_err *e)
+{
+    arbor_server *s = l->srv;
+    sync_bad *b = calloc(1, sizeof *b);
+    if (b == NULL)
+        return false;
+    snprintf(b->name, sizeof b->name, "%s", l->name);
+    snprintf(b->path, sizeof b->path, "%s", l->path);
+    b->stamp = l->stamp;
+    bool memory = e->status == ARBOR_ERR_NOSPACE || e->status == ARBOR_ERR_NOMEM;
+    b->retry_ms = memory ? arbor_now_ms() + SYNC_RETRY_MS : INFINITY;
+    b->err = *e;
+    pthread_mutex_lock(&s->lock);
+    for (sync_bad **p = &s->bad; *p != NULL; p = &(*p)->next)
+        if (strcmp((*p)->name, l->name) == 0) {
+            sync_bad *old = *p;
+            *p = old->next;
+            free(old);
+            break;
+        }
+    b->next = s->bad;
+    s->bad = b;
+    pthread_mutex_unlock(&s->lock);
+    return true;
+}
+
+/* Whether name's file at stamp is known to fail (its error in *e); a
+ * record of another stamp, or past its retry time, is dropped. */
+static bool bad_known(arbor_server *s, const char *name, uint64_t stamp, arbor_err *e, char *path, size_t cap)
+{
+    bool known = false;
+    pthread_mutex_lock(&s->lock);
+    for (sync_bad **p = &s->bad; *p != NULL; p = &(*p)->next) {
+        sync_bad *b = *p;
+        if (strcmp(b->name, name) != 0)
+            continue;
+        known = b->stamp == stamp && arbor_now_ms() < b->retry_ms;
+        if (known) {
+            *e = b->err;
+            snprintf(path, cap, "%s", b->path);
+        } else {
+            *p = b->next;
+            free(b);
+        }
+        break;
+    }
+    pthread_mutex_unlock(&s->lock);
+    return known;
+}
+
+void sync_forget(arbor_server *s)
+{
+    while (s->bad != NULL) {
+        sync_bad *b = s->bad;
+        s->bad = b->next;
+        free(b);
+    }
+}
+
+/* Answers r with the error its model's file failed to load with. */
+static void bad_reply(http_req *r, const char *name, const char *path, const arbor_err *e)
+{
+    if (e->status == ARBOR_ERR_NOSPACE || e->status == ARBOR_ERR_NOMEM)
+        http_reply_err(r, e);
+    else
+        http_reply_error(r, 500, "internal", "model '%s' cannot be loaded from %s: %s", name, path, e->msg);
+}
+
 /* ---- loading, on a worker ---- */
 
 static void load_answer(sync_load *l, bool ok, const arbor_err *e)
@@ -105,17 +197,19 @@ static void load_answer(sync_load *l, bool ok, const arbor_err *e)
     pthread_mutex_unlock(&s->lock);
     /* A file replaced or deleted while it was read (another request, or
      * another daemon, changed the folder) is no fault of the file: the
-     * waiters look again and find what is there now. */
+     * waiters look again and find what is there now. A file that fails is
+     * remembered, and the waiters look again too: a listing then passes it
+     * by, and a request for it gets its error (settle). */
     bool changed = !ok && arbor_file_stamp(l->path) != l->stamp;
+    bool remembered = !ok && !changed && e->status != ARBOR_ERR_CANCELLED && bad_remember(l, e);
     while (w != NULL) {
         waiter *next = w->next;
-        if (ok || changed)
+        if (ok || changed || remembered)
             w->r->redispatch = true;
-        else if (e->status == ARBOR_ERR_NOSPACE || e->status == ARBOR_ERR_NOMEM || e->status == ARBOR_ERR_CANCELLED)
+        else if (e->status == ARBOR_ERR_CANCELLED)
             http_reply_err(w->r, e);
         else
-            http_reply_error(w->r, 500, "internal", "model '%s' cannot be loaded from %s: %s", l->name, l->path,
-                             e->msg);
+            bad_reply(w->r, l->name, l->path, e);
         http_resume(w->r);
         free(w);
         w = next;
@@ -211,11 +305,13 @@ static void unload(arbor_server *s, arbor_model *m)
  * SYNC_CURRENT (m is what the folder holds), SYNC_GONE (there is no such
  * model now; m, if any, was unloaded) or SYNC_LOAD (r is suspended for the
  * load, or answered when it could not start). */
-static sync_state settle(http_req *r, const char *name, arbor_model *m)
+static sync_state settle(http_req *r, const char *name, arbor_model *m, arbor_err *bad, char *bad_path, size_t cap)
 {
     char path[PATH_MAX];
     uint64_t stamp = 0;
     sync_state st = compare(r->srv, name, m, path, sizeof path, &stamp);
+    if (st == SYNC_LOAD && bad_known(r->srv, name, stamp, bad, bad_path, cap))
+        st = m != NULL ? SYNC_CURRENT : SYNC_BAD; /* a model loaded before stays */
     if (st == SYNC_LOAD && r->sync_rounds >= SYNC_ROUNDS_MAX)
         st = m != NULL ? SYNC_CURRENT : SYNC_GONE; /* the folder keeps changing: take what is here */
     if (st == SYNC_LOAD)
@@ -228,11 +324,15 @@ static sync_state settle(http_req *r, const char *name, arbor_model *m)
 arbor_model *sync_model(http_req *r, const char *name)
 {
     arbor_model *m = arbor_store_acquire_model(r->srv->store, name);
-    sync_state st = settle(r, name, m);
+    arbor_err bad;
+    char path[PATH_MAX];
+    sync_state st = settle(r, name, m, &bad, path, sizeof path);
     if (st == SYNC_CURRENT && m != NULL)
         return m;
     arbor_model_release(m);
-    if (st != SYNC_LOAD)
+    if (st == SYNC_BAD)
+        bad_reply(r, name, path, &bad);
+    else if (st != SYNC_LOAD)
         http_reply_error(r, 404, "not_found", "no model named '%s'", name);
     return NULL;
 }
@@ -258,8 +358,10 @@ bool sync_models(http_req *r)
     arbor_model **models;
     uint32_t n = arbor_store_list_models(s->store, &models);
     bool current = true;
+    arbor_err bad; /* a file that fails to load is left out of the listing */
+    char path[PATH_MAX];
     for (uint32_t i = 0; i < n; i++) {
-        current = current && settle(r, arbor_model_name(models[i]), models[i]) != SYNC_LOAD;
+        current = current && settle(r, arbor_model_name(models[i]), models[i], &bad, path, sizeof path) != SYNC_LOAD;
         arbor_model_release(models[i]);
     }
     free(models);
@@ -271,7 +373,7 @@ bool sync_models(http_req *r)
             continue;
         arbor_model *m = arbor_store_acquire_model(s->store, name);
         if (m == NULL)
-            current = settle(r, name, NULL) != SYNC_LOAD;
+            current = settle(r, name, NULL, &bad, path, sizeof path) != SYNC_LOAD;
         arbor_model_release(m);
     }
     if (d != NULL)

@@ -448,6 +448,29 @@ def test_replace_of_a_model_deleted_through_another_daemon_is_new():
 
 
 @test
+def test_a_file_that_fails_to_load_leaves_the_listing_whole():
+    """A model file in the folder that cannot be loaded is left out of GET /api/models (once and again),
+    a request for it answers the load's error, and once the file is mended it loads."""
+    d = Daemon([our("cornell.obj")], ["--threads", "1", "--prebuild", "none"], copy=True, name="broken-file daemon")
+    try:
+        path = os.path.join(d.models_dir, "broken.obj")
+        with open(path, "wb") as f:
+            f.write(b"v 0 0 0\nf 1 2 3\n")
+        for i in range(2):
+            eq([m["name"] for m in expect_json(d.get("/api/models"))["models"]], ["cornell"], "listing %d" % i)
+        e = expect_error(d.get("/api/models/broken"), 500, "internal")
+        check("vertex index 2 out of range" in e["message"], "the load's error in %r" % e["message"])
+        with open(path + ".new", "wb") as f:
+            f.write(TETRA_OBJ)
+        os.rename(path + ".new", path)
+        eq(d.model("broken")["triangles"], 4, "broken.obj mended")
+        eq([m["name"] for m in expect_json(d.get("/api/models"))["models"]], ["broken", "cornell"], "listing after")
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+@test
 def test_uploads_of_one_new_name_at_once():
     """Eight uploads of one new name at once: one is 201, the rest 409, and the model and its file stay."""
     d = upload_daemon()
