@@ -58,6 +58,11 @@ bool folder_is_model_file(const char *file)
     return false;
 }
 
+bool folder_is_material_file(const char *file)
+{
+    return ends_with(file, ".mtl");
+}
+
 bool folder_lock_take(const char *dir, int *fd, char *err, size_t errcap)
 {
     char path[PATH_MAX];

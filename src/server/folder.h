@@ -29,6 +29,8 @@ extern const char *const folder_model_exts[FOLDER_NEXTS];
 /* Whether a file name is a model file's: one of folder_model_exts, in any
  * case. */
 bool folder_is_model_file(const char *file);
+/* Whether a file name is a material library's (.mtl, in any case). */
+bool folder_is_material_file(const char *file);
 
 /* Takes the folder's lock, waiting for it; false (err set) when the lock
  * file cannot be opened. Returns the descriptor to give folder_lock_drop. */

@@ -149,6 +149,13 @@ static enum MHD_Result on_part(void *cls, enum MHD_ValueKind kind, const char *k
             snprintf(u->error, sizeof u->error, "part file name '%.64s' is not usable", filename);
             return MHD_NO;
         }
+        if (!folder_is_model_file(name) && !folder_is_material_file(name)) {
+            /* it would be written into the models folder, for no model */
+            snprintf(u->error, sizeof u->error,
+                     "part '%s' is neither a model file (.obj, .ply, either .gz) nor a material library (.mtl)",
+                     name);
+            return MHD_NO;
+        }
         if (!part_start(u, name))
             return MHD_NO;
     }

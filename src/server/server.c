@@ -452,7 +452,7 @@ static http_route classify(const char *path)
     if (strcmp(path, "/api/bench") == 0) return ROUTE_BENCH;
     if (strncmp(path, "/api/jobs/", 10) == 0) return ROUTE_JOBS;
     if (strncmp(path, "/api/models/", 12) == 0) {
-        const char *boxes = strstr(path, "/boxes");
+        const char *boxes = strstr(path + 12, "/boxes"); /* after the name: a model may be called boxes */
         if (boxes != NULL && boxes[6] == '\0') return ROUTE_BOXES;
         const char *trees = strstr(path + 12, "/trees");
         return trees != NULL && trees[6] == '\0' ? ROUTE_TREES : ROUTE_MODEL;

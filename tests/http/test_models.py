@@ -156,6 +156,30 @@ def test_upload_multipart_without_model_part():
 
 
 @test
+def test_upload_multipart_other_files_refused():
+    """A multipart part that is neither a model file nor a .mtl is a 400, and nothing of the upload is
+    written into the folder."""
+    d = upload_daemon()
+    before = _folder(d)
+    body, ctype = multipart([("model", "ok.obj", "model/obj", TETRA_OBJ), ("f", "run.sh", "text/plain", b"echo hi\n")])
+    e = expect_error(d.req("POST", "/api/models/other-files", body=body, headers={"Content-Type": ctype}), 400,
+                     "bad_request")
+    check("run.sh" in e["message"], "400 does not name the part: %r" % e["message"])
+    eq(_folder(d), before, "the models folder after the refused upload")
+    expect_error(d.get("/api/models/other-files"), 404, "not_found")
+
+
+@test
+def test_models_named_like_routes():
+    """Models may be called boxes or trees: the routes below a model come after its name."""
+    d = upload_daemon()
+    for name in ("boxes", "trees"):
+        eq(expect_json(put(d, name, TETRA_OBJ), 201)["triangles"], 4, "PUT %s" % name)
+        eq(d.model(name)["triangles"], 4, "GET %s" % name)
+        eq(expect_json(d.req("DELETE", "/api/models/" + name)), {"deleted": name}, "DELETE %s" % name)
+
+
+@test
 def test_upload_survives_restart():
     """An upload is a file in the first --models dir: a daemon started on that dir loads it."""
     d = upload_daemon()
