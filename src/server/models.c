@@ -29,23 +29,29 @@
 #define PART_NAME_MAX 128
 
 typedef struct upload_parts {
-    char dir[64];                 /* the temporary folder */
+    char dir[PATH_MAX / 2];       /* the temporary folder */
     FILE *out;                    /* the part being written */
     char out_name[PART_NAME_MAX]; /* its file name in dir */
     char model[PART_NAME_MAX];    /* the .obj / .ply part, "" until seen */
     uint32_t nfiles;
     char error[256];              /* what went wrong while receiving, for the final answer */
+    bool full;                    /* error is the temporary folder's disk being full */
 } upload_parts;
 
 /* ---- receiving ---- */
 
+/* The parts are received into a temporary folder of their own, in TMPDIR
+ * as other programs' temporary files are (/tmp without it). */
 static bool parts_open_dir(http_req *r)
 {
     upload_parts *u = calloc(1, sizeof *u);
     if (u == NULL)
         return false;
-    snprintf(u->dir, sizeof u->dir, "/tmp/arbord-upload-XXXXXX");
-    if (mkdtemp(u->dir) == NULL) {
+    const char *tmp = getenv("TMPDIR");
+    if (tmp == NULL || tmp[0] != '/')
+        tmp = "/tmp";
+    int n = snprintf(u->dir, sizeof u->dir, "%s/arbord-upload-XXXXXX", tmp);
+    if (n < 0 || (size_t)n >= sizeof u->dir || mkdtemp(u->dir) == NULL) {
         free(u);
         return false;
     }
@@ -53,13 +59,26 @@ static bool parts_open_dir(http_req *r)
     return true;
 }
 
+/* Closes the part being written; false (u->error set) when what was
+ * buffered of it cannot be written. */
+static bool part_close(upload_parts *u)
+{
+    bool ok = u->out == NULL || fclose(u->out) == 0;
+    if (!ok) {
+        u->full = true;
+        snprintf(u->error, sizeof u->error, "cannot store part '%s' in the temporary folder: %s", u->out_name,
+                 strerror(errno));
+    }
+    u->out = NULL;
+    return ok;
+}
+
 void models_parts_free(http_req *r)
 {
     upload_parts *u = r->parts;
     if (u == NULL)
         return;
-    if (u->out != NULL)
-        fclose(u->out);
+    part_close(u);
     DIR *d = opendir(u->dir);
     if (d != NULL) {
         struct dirent *ent;
@@ -95,9 +114,8 @@ static bool safe_base_name(const char *filename, char *out, size_t cap)
 
 static bool part_start(upload_parts *u, const char *name)
 {
-    if (u->out != NULL)
-        fclose(u->out);
-    u->out = NULL;
+    if (!part_close(u))
+        return false;
     if (u->nfiles == UPLOAD_FILES_MAX) {
         snprintf(u->error, sizeof u->error, "at most %d files in one upload", UPLOAD_FILES_MAX);
         return false;
@@ -108,13 +126,14 @@ static bool part_start(upload_parts *u, const char *name)
                  u->model);
         return false;
     }
-    char path[256];
+    char path[sizeof u->dir + PART_NAME_MAX + 2];
     snprintf(u->out_name, sizeof u->out_name, "%s", name);
     snprintf(path, sizeof path, "%s/%s", u->dir, name);
     u->out = fopen(path, "wbx");
     if (u->out == NULL) {
+        u->full = errno != EEXIST;
         snprintf(u->error, sizeof u->error, "cannot store part '%s': %s", name,
-                 errno == EEXIST ? "two parts have that file name" : "write failed");
+                 errno == EEXIST ? "two parts have that file name" : strerror(errno));
         return false;
     }
     u->nfiles++;
@@ -126,7 +145,9 @@ static bool part_start(upload_parts *u, const char *name)
 static bool part_write(upload_parts *u, const char *data, size_t size)
 {
     if (size > 0 && fwrite(data, 1, size, u->out) != size) {
-        snprintf(u->error, sizeof u->error, "cannot store part '%s': disk full or write failed", u->out_name);
+        u->full = true;
+        snprintf(u->error, sizeof u->error, "cannot store part '%s' in the temporary folder: %s", u->out_name,
+                 strerror(errno));
         return false;
     }
     return true;
@@ -166,7 +187,8 @@ bool models_post_data(http_req *r, const char *data, size_t size)
 {
     if (r->parts == NULL) {
         if (!parts_open_dir(r)) {
-            http_reply_error(r, 507, "insufficient_memory", "cannot make a temporary folder for the upload");
+            http_reply_error(r, 507, "insufficient_storage", "cannot make a temporary folder for the upload: %s",
+                             strerror(errno));
             return false;
         }
         bool put = http_method_is(r, "PUT");
@@ -178,13 +200,15 @@ bool models_post_data(http_req *r, const char *data, size_t size)
                 return false;
             }
         } else if (!part_start(r->parts, "upload.bin")) {
-            http_reply_error(r, 507, "insufficient_memory", "%s", r->parts->error);
+            http_reply_error(r, 507, "insufficient_storage", "%s", r->parts->error);
             return false;
         }
     }
     r->body_len += size;
     bool ok = r->post != NULL ? MHD_post_process(r->post, data, size) == MHD_YES : part_write(r->parts, data, size);
-    if (!ok)
+    if (!ok && r->parts->full)
+        http_reply_error(r, 507, "insufficient_storage", "%s", r->parts->error);
+    else if (!ok)
         http_reply_error(r, 400, "bad_request", "%s",
                          r->parts->error[0] ? r->parts->error : "malformed multipart/form-data body");
     return ok;
@@ -400,12 +424,10 @@ static void upload(http_req *r, const char *name)
         http_reply_error(r, 400, "bad_request", "the upload is empty");
         return;
     }
-    if (u->out != NULL && fclose(u->out) != 0) {
-        u->out = NULL;
-        http_reply_error(r, 507, "insufficient_memory", "cannot store the upload: disk full or write failed");
+    if (!part_close(u)) {
+        http_reply_error(r, 507, "insufficient_storage", "%s", u->error);
         return;
     }
-    u->out = NULL;
     if (http_method_is(r, "POST") && u->model[0] == '\0') {
         http_reply_error(r, 400, "bad_request", "the upload has no .obj, .ply, .obj.gz or .ply.gz file part");
         return;

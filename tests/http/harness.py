@@ -255,7 +255,7 @@ class Daemon:
     """
 
     def __init__(self, models=(), args=(), bind="127.0.0.1", copy=False, wait_ready=True,
-                 models_dir=None, name="daemon", ready_timeout=120, default_web=False):
+                 models_dir=None, name="daemon", ready_timeout=120, default_web=False, env=None):
         self.tmp = tempfile.mkdtemp(prefix="arbor-http-")
         self.models_dir = models_dir or os.path.join(self.tmp, "models")
         os.makedirs(self.models_dir, exist_ok=True)
@@ -288,7 +288,7 @@ class Daemon:
             log("start", " ".join(cmd))
             self.errf = open(self.stderr_path, "wb")
             self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=self.errf,
-                                         stdin=subprocess.DEVNULL)
+                                         stdin=subprocess.DEVNULL, env=dict(os.environ, **(env or {})))
             ALL_DAEMONS.append(self)
             if self._wait_listening(30):
                 break

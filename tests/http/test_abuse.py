@@ -21,7 +21,7 @@ import tempfile
 import threading
 import time
 
-from harness import Daemon, check, eq, expect_error, expect_json, fail, ignore, our, test
+from harness import Daemon, check, eq, expect_error, expect_json, fail, ignore, multipart, our, test
 
 PROBE_FROM = "127.0.0.2"
 HEALTHZ_BUDGET_MS = 100.0
@@ -409,6 +409,32 @@ def test_abuse_disk_full_on_upload():
             eq(sorted(os.listdir(mnt)), [".arbord.lock", ".first.upload", "cornell.obj", "first.obj"],
                "files in the full models folder")
             base.back("disk full on upload")
+        finally:
+            d.stop_clean()
+
+
+@test
+def test_abuse_temporary_folder_full_on_upload():
+    """TMPDIR on a 256 KiB tmpfs: the upload is received there, and one that does not fit is 507
+    insufficient_storage (not a 400: the client's body was fine), leaving nothing behind; a small one
+    still goes through."""
+    with tmpfs("256k", "arbor-tmp-") as tmp:
+        d = Daemon([our("cornell.obj")], ["--threads", "2"], copy=True, env={"TMPDIR": tmp},
+                   name="small-TMPDIR daemon")
+        try:
+            with open(our("menger.obj"), "rb") as f:
+                big = f.read()
+            for method, kind in (("PUT", "application/octet-stream"), ("POST", None)):
+                if kind is None:
+                    body, kind = multipart([("model", "big.obj", "model/obj", big)])
+                else:
+                    body = big
+                r = d.req(method, "/api/models/big", body=body, headers={"Content-Type": kind})
+                e = expect_error(r, 507, "insufficient_storage")
+                check("big.obj" in e["message"] or "upload.bin" in e["message"], "507 names no part: %r" % e)
+                eq(os.listdir(tmp), [], "the temporary folder after the refused %s" % method)
+            expect_json(d.req("PUT", "/api/models/small", body=b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"), 201)
+            eq(os.listdir(tmp), [], "the temporary folder after an upload")
         finally:
             d.stop_clean()
 
