@@ -12,6 +12,7 @@
 #include <arpa/inet.h>
 #include <errno.h>
 #include <inttypes.h>
+#include <assert.h>
 #include <math.h>
 #include <netinet/in.h>
 #include <stdarg.h>
@@ -212,9 +213,14 @@ const char *http_arg(http_req *r, const char *key)
     return MHD_lookup_connection_value(r->conn, MHD_GET_ARGUMENT_KIND, key);
 }
 
+#define ARGS_KNOWN_MAX 8
+
 typedef struct {
     const char *known;
-    const char *unknown; /* the first key not in known */
+    const char *unknown;                 /* the first key not in known */
+    const char *twice;                   /* the first key given twice */
+    const char *seen[ARGS_KNOWN_MAX];    /* the keys so far, each once */
+    uint32_t nseen;
 } args_check;
 
 static enum MHD_Result arg_known(void *cls, enum MHD_ValueKind kind, const char *key, const char *value)
@@ -224,20 +230,33 @@ static enum MHD_Result arg_known(void *cls, enum MHD_ValueKind kind, const char 
     args_check *c = cls;
     size_t n = strlen(key);
     bool plain = n > 0 && strcspn(key, ", ") == n; /* a key holding a separator would match across two */
-    for (const char *at = c->known; plain && (at = strstr(at, key)) != NULL; at += n)
-        if ((at == c->known || at[-1] == ' ') && (at[n] == ',' || at[n] == '\0'))
-            return MHD_YES;
-    c->unknown = key;
-    return MHD_NO;
+    const char *at = c->known;
+    while (plain && (at = strstr(at, key)) != NULL && !((at == c->known || at[-1] == ' ') &&
+                                                         (at[n] == ',' || at[n] == '\0')))
+        at += n;
+    if (!plain || at == NULL) {
+        c->unknown = key;
+        return MHD_NO;
+    }
+    for (uint32_t i = 0; i < c->nseen; i++)
+        if (strcmp(c->seen[i], key) == 0) {
+            c->twice = key; /* the route would read the first and drop the other */
+            return MHD_NO;
+        }
+    assert(c->nseen < ARGS_KNOWN_MAX); /* known names fewer keys, each seen once */
+    c->seen[c->nseen++] = key;
+    return MHD_YES;
 }
 
 bool http_args_known(http_req *r, const char *known)
 {
-    args_check c = {known, NULL};
+    args_check c = {.known = known};
     MHD_get_connection_values(r->conn, MHD_GET_ARGUMENT_KIND, arg_known, &c);
     if (c.unknown != NULL)
         http_reply_error(r, 400, "bad_request", "unknown query parameter '%s' (%s)", c.unknown, known);
-    return c.unknown == NULL;
+    else if (c.twice != NULL)
+        http_reply_error(r, 400, "bad_request", "%s is given twice", c.twice);
+    return c.unknown == NULL && c.twice == NULL;
 }
 
 bool http_arg_flag(http_req *r, const char *key, bool *ok)
@@ -291,10 +310,43 @@ bool http_may_write(http_req *r)
     return false;
 }
 
+/* Keys an object of a body may have: the API's have fewer than 32, and the
+ * check for a key given twice is quadratic in them. */
+#define JSON_KEYS_MAX 64
+
+/* Whether every object in j, at any depth, has at most JSON_KEYS_MAX keys,
+ * none of them twice (cJSON keeps every copy, and a route would read one of
+ * them silently); else why, in err. */
+static bool json_keys_once(const cJSON *j, char *err, size_t cap)
+{
+    uint32_t n = 0;
+    for (const cJSON *v = j->child; v != NULL; v = v->next, n++) {
+        if (cJSON_IsObject(j)) {
+            if (n == JSON_KEYS_MAX) {
+                snprintf(err, cap, "an object has more than %d keys", JSON_KEYS_MAX);
+                return false;
+            }
+            for (const cJSON *w = j->child; w != v; w = w->next)
+                if (strcmp(w->string, v->string) == 0) {
+                    snprintf(err, cap, "%.64s is given twice", v->string);
+                    return false;
+                }
+        }
+        if (!json_keys_once(v, err, cap))
+            return false;
+    }
+    return true;
+}
+
 cJSON *http_body_json(http_req *r)
 {
     if (r->body_len == 0) {
         http_reply_error(r, 400, "bad_request", "a JSON object body is required");
+        return NULL;
+    }
+    const char *nul = memchr(r->body, '\0', r->body_len);
+    if (nul != NULL) { /* JSON has no raw NUL; cJSON would end a string at it */
+        http_reply_error(r, 400, "bad_request", "malformed JSON body: a NUL byte at byte %zu", (size_t)(nul - r->body));
         return NULL;
     }
     const char *end = NULL;
@@ -314,9 +366,15 @@ cJSON *http_body_json(http_req *r)
         http_reply_error(r, 400, "bad_request", "malformed JSON body near byte %zu", at);
         return NULL;
     }
+    char why[128];
     if (!cJSON_IsObject(j)) {
         cJSON_Delete(j);
         http_reply_error(r, 400, "bad_request", "the JSON body must be an object");
+        return NULL;
+    }
+    if (!json_keys_once(j, why, sizeof why)) {
+        cJSON_Delete(j);
+        http_reply_error(r, 400, "bad_request", "%s", why);
         return NULL;
     }
     return j;
