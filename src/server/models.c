@@ -32,6 +32,7 @@ typedef struct upload_parts {
     char dir[PATH_MAX / 2];       /* the temporary folder */
     FILE *out;                    /* the part being written */
     char out_name[PART_NAME_MAX]; /* its file name in dir */
+    uint64_t out_bytes;           /* written of it so far */
     char model[PART_NAME_MAX];    /* the .obj / .ply part, "" until seen */
     uint32_t nfiles;
     char error[256];              /* what went wrong while receiving, for the final answer */
@@ -128,6 +129,7 @@ static bool part_start(upload_parts *u, const char *name)
     }
     char path[sizeof u->dir + PART_NAME_MAX + 2];
     snprintf(u->out_name, sizeof u->out_name, "%s", name);
+    u->out_bytes = 0;
     snprintf(path, sizeof path, "%s/%s", u->dir, name);
     u->out = fopen(path, "wbx");
     if (u->out == NULL) {
@@ -144,6 +146,7 @@ static bool part_start(upload_parts *u, const char *name)
 
 static bool part_write(upload_parts *u, const char *data, size_t size)
 {
+    u->out_bytes += size;
     if (size > 0 && fwrite(data, 1, size, u->out) != size) {
         u->full = true;
         snprintf(u->error, sizeof u->error, "cannot store part '%s' in the temporary folder: %s", u->out_name,
@@ -177,7 +180,11 @@ static enum MHD_Result on_part(void *cls, enum MHD_ValueKind kind, const char *k
                      name);
             return MHD_NO;
         }
-        if (!part_start(u, name))
+        /* libmicrohttpd calls with offset 0 twice for one part when the
+         * first read after its headers holds only a few bytes of it (the
+         * first call then has none): that part goes on */
+        bool same = u->out != NULL && u->out_bytes == 0 && strcmp(u->out_name, name) == 0;
+        if (!same && !part_start(u, name))
             return MHD_NO;
     }
     return part_write(u, data, size) ? MHD_YES : MHD_NO;
@@ -423,6 +430,20 @@ static void upload(http_req *r, const char *name)
     if (u == NULL || r->body_len == 0) {
         http_reply_error(r, 400, "bad_request", "the upload is empty");
         return;
+    }
+    if (r->post != NULL) {
+        /* what it still holds of the last part goes out now, and a body
+         * that ends inside a part (no closing boundary) is cut short */
+        bool whole = MHD_destroy_post_processor(r->post) == MHD_YES;
+        r->post = NULL;
+        if (u->full) {
+            http_reply_error(r, 507, "insufficient_storage", "%s", u->error);
+            return;
+        }
+        if (!whole) {
+            http_reply_error(r, 400, "bad_request", "the multipart body ends inside a part (no closing boundary)");
+            return;
+        }
     }
     if (!part_close(u)) {
         http_reply_error(r, 507, "insufficient_storage", "%s", u->error);

@@ -1,6 +1,8 @@
 """Uploads (PUT OBJ/PLY/gzip, multipart .obj + .mtl), 409 and replace, delete, while frames render."""
 import gzip
+import json
 import os
+import socket
 import struct
 import threading
 import time
@@ -177,6 +179,53 @@ def test_models_named_like_routes():
         eq(expect_json(put(d, name, TETRA_OBJ), 201)["triangles"], 4, "PUT %s" % name)
         eq(d.model(name)["triangles"], 4, "GET %s" % name)
         eq(expect_json(d.req("DELETE", "/api/models/" + name)), {"deleted": name}, "DELETE %s" % name)
+
+
+def _send_split(d, path, body, ctype, cut):
+    """POST body in two writes, split at byte cut, as TCP may deliver it; returns (status, JSON)."""
+    s = socket.create_connection(("127.0.0.1", d.port), timeout=30)
+    try:
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        s.sendall(("POST %s HTTP/1.1\r\nHost: x\r\nContent-Type: %s\r\nContent-Length: %d\r\nConnection: close\r\n\r\n"
+                   % (path, ctype, len(body))).encode() + body[:cut])
+        time.sleep(0.05)
+        s.sendall(body[cut:])
+        out = b""
+        while True:
+            c = s.recv(65536)
+            if not c:
+                break
+            out += c
+    finally:
+        s.close()
+    head, _, rest = out.partition(b"\r\n\r\n")
+    return int(head.split()[1]), json.loads(rest)
+
+
+@test
+def test_upload_multipart_split_anywhere():
+    """A multipart upload whose first bytes of a part arrive alone (1-5 bytes after its headers, then the
+    rest) is the same upload: libmicrohttpd then starts the part twice."""
+    d = upload_daemon()
+    body, ctype = multipart([("model", "split.obj", "model/obj", TETRA_OBJ)])
+    start = body.index(b"\r\n\r\n") + 4
+    for k in range(6):
+        status, j = _send_split(d, "/api/models/split%d" % k, body, ctype, start + k)
+        eq((status, j.get("triangles")), (201, 4), "split %d bytes into the part: %r" % (k, j))
+        expect_json(d.req("DELETE", "/api/models/split%d" % k))
+
+
+@test
+def test_upload_multipart_without_closing_boundary():
+    """A multipart body that ends inside its part (no closing boundary) is a 400: the part may be cut
+    anywhere, here inside a face, and saving it would keep the wrong model."""
+    d = upload_daemon()
+    body, ctype = multipart([("model", "cut.obj", "model/obj", b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n")])
+    cut = body[:body.rindex(b"\r\n--")]
+    r = d.req("POST", "/api/models/cut", body=cut, headers={"Content-Type": ctype})
+    e = expect_error(r, 400, "bad_request")
+    check("boundary" in e["message"], "400 does not say why: %r" % e["message"])
+    expect_error(d.get("/api/models/cut"), 404, "not_found")
 
 
 @test
