@@ -475,7 +475,8 @@ typedef struct {
  * lock held (folder.h). A read-only folder holds no upload's files to
  * remove, and its models are only unloaded. In a folder that can be
  * written, a lock that cannot be taken is a 507 and the model stays: the
- * files left behind would load it again at the next request. */
+ * files left behind would load it again at the next request. A model of
+ * the folder this daemon has not loaded (or cannot load) goes all the same. */
 static void delete_run(void *ctx, uint32_t task)
 {
     (void)task;
@@ -486,9 +487,11 @@ static void delete_run(void *ctx, uint32_t task)
     arbor_err err;
     int lock = -1;
     bool locked = dir != NULL && folder_lock_take(dir, &lock, why, sizeof why);
+    bool exists = sync_exists(r->srv, j->name); /* under the lock: as other daemons left it */
     if (dir != NULL && !locked && access(dir, W_OK) == 0) {
         http_reply_error(r, 507, "insufficient_storage", "%s", why);
-    } else if (!arbor_store_remove_model(r->srv->store, j->name, &err)) {
+    } else if (!arbor_store_remove_model(r->srv->store, j->name, &err) &&
+               (err.status != ARBOR_ERR_NOT_FOUND || !exists)) {
         http_reply_err(r, &err);
     } else {
         /* An uploaded model's files go with it, or the next start would load
@@ -510,10 +513,12 @@ static void delete_model(http_req *r, const char *name)
 {
     if (!http_may_write(r))
         return;
-    arbor_model *m = sync_model(r, name);
-    if (m == NULL)
+    /* Not sync_model: a model this daemon cannot load (a broken file, or
+     * one over its memory budget) is still deleted through it. */
+    if (!sync_exists(r->srv, name)) {
+        http_reply_error(r, 404, "not_found", "no model named '%s'", name);
         return;
-    arbor_model_release(m);
+    }
     delete_job *j = calloc(1, sizeof *j);
     if (j == NULL) {
         http_reply_error(r, 507, "insufficient_memory", "out of memory");

@@ -16,8 +16,9 @@
  *
  * A file that fails to load is remembered with its stamp (a sync_bad) and
  * not read again until it changes: GET /api/models lists the others, and a
- * request for that name is answered the load's error; a model the store
- * already had under that name stays. A load refused for memory is tried
+ * request for that name is answered the load's error (a model the store had
+ * under that name, from an older file, is unloaded: the daemons sharing the
+ * folder must not answer two versions). A load refused for memory is tried
  * again after SYNC_RETRY_MS, since room may have been made meanwhile.
  *
  * The checks are stat(2) calls on the polling thread (metadata only: no
@@ -310,8 +311,13 @@ static sync_state settle(http_req *r, const char *name, arbor_model *m, arbor_er
     char path[PATH_MAX];
     uint64_t stamp = 0;
     sync_state st = compare(r->srv, name, m, path, sizeof path, &stamp);
-    if (st == SYNC_LOAD && bad_known(r->srv, name, stamp, bad, bad_path, cap))
-        st = m != NULL ? SYNC_CURRENT : SYNC_BAD; /* a model loaded before stays */
+    if (st == SYNC_LOAD && bad_known(r->srv, name, stamp, bad, bad_path, cap)) {
+        /* what this daemon had loaded is not what the folder holds now: the
+         * others answer the new file, so this one cannot answer the old */
+        if (m != NULL)
+            unload(r->srv, m);
+        st = SYNC_BAD;
+    }
     if (st == SYNC_LOAD && r->sync_rounds >= SYNC_ROUNDS_MAX)
         st = m != NULL ? SYNC_CURRENT : SYNC_GONE; /* the folder keeps changing: take what is here */
     if (st == SYNC_LOAD)

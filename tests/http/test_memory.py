@@ -155,6 +155,29 @@ def test_memory_replace_that_cannot_fit_keeps_the_old_model():
 
 
 @test
+def test_memory_delete_through_a_daemon_that_cannot_load_the_model():
+    """A model uploaded through one daemon is deleted through another sharing the folder whose budget
+    cannot hold it: DELETE needs no load, and the upload's files go."""
+    d = Daemon([our("cornell.obj")], ["--threads", "2", "--prebuild", "none"], copy=True, name="roomy daemon")
+    try:
+        expect_json(d.req("PUT", "/api/models/wide", body=grid_obj(300),
+                          headers={"Content-Type": "application/octet-stream"}), 201)
+        small = Daemon(args=["--threads", "1", "--prebuild", "none", "--max-memory", "1M"], models_dir=d.models_dir,
+                       name="small daemon")
+        try:
+            expect_error(small.get("/api/models/wide"), 507, "insufficient_memory")
+            eq(expect_json(small.req("DELETE", "/api/models/wide")), {"deleted": "wide"}, "DELETE through it")
+            check(not os.path.exists(os.path.join(d.models_dir, "wide.obj")), "wide.obj stayed")
+            small.stop_clean()
+        finally:
+            small.cleanup()
+        expect_error(d.get("/api/models/wide"), 404, "not_found")
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+@test
 def test_memory_tree_in_use_is_not_evicted():
     """The least recently built tree is rendering a frame: eviction passes it over and takes the next."""
     import threading

@@ -538,6 +538,15 @@ def test_a_file_that_fails_to_load_leaves_the_listing_whole():
         os.rename(path + ".new", path)
         eq(d.model("broken")["triangles"], 4, "broken.obj mended")
         eq([m["name"] for m in expect_json(d.get("/api/models"))["models"]], ["broken", "cornell"], "listing after")
+        # broken again, while loaded: the old version is not answered (other daemons answer the new file)
+        with open(path + ".new", "wb") as f:
+            f.write(b"v 0 0 0\nf 1 2 3\n")
+        os.rename(path + ".new", path)
+        expect_error(d.get("/api/models/broken"), 500, "internal")
+        eq([m["name"] for m in expect_json(d.get("/api/models"))["models"]], ["cornell"], "listing, broken again")
+        # and it can be deleted (unloaded: the operator's file stays) without being loaded first
+        eq(expect_json(d.req("DELETE", "/api/models/broken")), {"deleted": "broken"}, "DELETE of a broken file")
+        check(os.path.exists(path), "DELETE removed the operator's broken.obj")
         d.stop_clean()
     finally:
         d.cleanup()
