@@ -20,10 +20,11 @@ double arbor_now_ms(void);
 /* Online cores, at least 1. */
 int arbor_cpu_count(void);
 
-/* The identity of the file at path as it is now: a hash of its device,
- * inode, size and modification time (never 0), or 0 when there is no such
- * file. A file replaced by a rename gets a new inode, so daemons sharing a
- * folder tell a new version from the one they loaded by this number. */
+/* The identity of the file at path as it is now: a hash of its inode, size
+ * and modification time (never 0), or 0 when there is no such file. A file
+ * replaced by a rename gets a new inode, so daemons sharing a folder tell a
+ * new version from the one they loaded by this number; it leaves out the
+ * device, which differs between hosts mounting one NFS folder. */
 uint64_t arbor_file_stamp(const char *path);
 
 /* Asks the kernel to map now, writable, the whole pages inside [p, p +

@@ -24,16 +24,19 @@ int arbor_cpu_count(void)
     return n > 0 ? (int)n : 1;
 }
 
-/* FNV-1a over the fields that change when a file is replaced or rewritten. */
+/* FNV-1a over the fields that change when a file is replaced or rewritten.
+ * Not the device: an NFS client numbers the mount when it mounts it, so
+ * hosts sharing a folder (and one host after a remount) see other device
+ * numbers for the same file, and its identity must not change with them. */
 uint64_t arbor_file_stamp(const char *path)
 {
     struct stat st;
     if (stat(path, &st) != 0)
         return 0;
-    uint64_t fields[5] = {(uint64_t)st.st_dev, (uint64_t)st.st_ino, (uint64_t)st.st_size,
-                          (uint64_t)st.st_mtim.tv_sec, (uint64_t)st.st_mtim.tv_nsec};
+    uint64_t fields[4] = {(uint64_t)st.st_ino, (uint64_t)st.st_size, (uint64_t)st.st_mtim.tv_sec,
+                          (uint64_t)st.st_mtim.tv_nsec};
     uint64_t h = 14695981039346656037ull;
-    for (int i = 0; i < 5; i++)
+    for (int i = 0; i < 4; i++)
         for (int b = 0; b < 8; b++) {
             h ^= (fields[i] >> (8 * b)) & 0xff;
             h *= 1099511628211ull;

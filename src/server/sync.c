@@ -4,7 +4,7 @@
  * Every daemon of a cluster serves the same first --models folder, and an
  * upload through any of them is written there atomically (models.c). The
  * files are the truth, and a file's version is its identity
- * (arbor_file_stamp: device, inode, size, modification time; a rename gives
+ * (arbor_file_stamp: inode, size, modification time; a rename gives
  * each upload a new inode). Before a route uses a model it asks sync_model,
  * which compares the store's model with the folder:
  *   - a model the store does not know, or whose file is not the one it was

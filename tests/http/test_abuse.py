@@ -440,6 +440,57 @@ def test_abuse_temporary_folder_full_on_upload():
 
 
 @test
+def test_abuse_folder_mounted_again_under_another_device():
+    """The models folder's filesystem mounted again through another loop device (as another host, or a
+    remount, sees an NFS folder: the device number differs, the files do not): DELETE still knows the
+    files its upload wrote and removes them."""
+    if os.geteuid() != 0:
+        ignore("needs root to mount a loop device")
+    work = tempfile.mkdtemp(prefix="arbor-dev-")
+    img, mnt = os.path.join(work, "fs.img"), os.path.join(work, "mnt")
+    os.mkdir(mnt)
+    loops = []
+
+    def attach():
+        p = subprocess.run(["losetup", "--find", "--show", img], capture_output=True, text=True)
+        if p.returncode != 0:
+            ignore("no loop device: %s" % p.stderr.strip())
+        loops.append(p.stdout.strip())
+        subprocess.run(["mount", loops[-1], mnt], check=True)
+
+    try:
+        with open(img, "wb") as f:
+            f.truncate(8 << 20)
+        if subprocess.run(["mkfs.ext4", "-q", img], capture_output=True).returncode != 0:
+            ignore("mkfs.ext4 failed")
+        attach()
+        models = os.path.join(mnt, "models")
+        os.mkdir(models)
+        d = Daemon(models_dir=models, args=["--threads", "1", "--prebuild", "none"], name="first-mount daemon")
+        body, ctype = multipart([("model", "moved.obj", "model/obj", b"mtllib moved.mtl\nusemtl m\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"),
+                                 ("mtl", "moved.mtl", "text/plain", b"newmtl m\nKd 1 0 0\n")])
+        try:
+            expect_json(d.req("POST", "/api/models/moved", body=body, headers={"Content-Type": ctype}), 201)
+        finally:
+            d.stop_clean()
+        dev = os.stat(models).st_dev
+        subprocess.run(["umount", mnt], check=True)
+        attach()  # the first loop device is still attached: this is another one
+        check(os.stat(models).st_dev != dev, "the second mount has the first one's device number")
+        d = Daemon(models_dir=models, args=["--threads", "1", "--prebuild", "none"], name="second-mount daemon")
+        try:
+            eq(expect_json(d.req("DELETE", "/api/models/moved")), {"deleted": "moved"}, "DELETE after the remount")
+            eq(sorted(os.listdir(models)), [".arbord.lock"], "files after the DELETE")
+        finally:
+            d.stop_clean()
+    finally:
+        subprocess.run(["umount", mnt], capture_output=True)
+        for loop in loops:
+            subprocess.run(["losetup", "-d", loop], capture_output=True)
+        shutil.rmtree(work, ignore_errors=True)
+
+
+@test
 def test_abuse_folder_lock_unusable():
     """A writable models folder whose lock cannot be opened (.arbord.lock made a folder): DELETE of an
     uploaded model is 507 and the model stays loaded with its files, since they would load it again;
