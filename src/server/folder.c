@@ -72,8 +72,15 @@ bool folder_lock_take(const char *dir, int *fd, char *err, size_t errcap)
         snprintf(err, errcap, "cannot open the models folder's lock %s: %s", path, strerror(errno));
         return false;
     }
-    while (flock(*fd, LOCK_EX) != 0 && errno == EINTR)
+    int rc;
+    while ((rc = flock(*fd, LOCK_EX)) != 0 && errno == EINTR)
         ;
+    if (rc != 0) { /* ENOLCK: an NFS mount without locking; going on unlocked would race */
+        snprintf(err, errcap, "cannot lock the models folder's lock %s: %s", path, strerror(errno));
+        close(*fd);
+        *fd = -1;
+        return false;
+    }
     return true;
 }
 
@@ -84,7 +91,10 @@ void folder_lock_drop(int fd)
 
 /* Writes dir/name through a temporary file and a rename, so that a daemon
  * reading the folder never sees half a file: a copy of the file at src, or
- * when src is NULL, text. */
+ * when src is NULL, text. The file is on disk before it takes the name
+ * (fsync before the rename), so that after a crash the name holds the old
+ * file or the whole new one; readable by all, as the models the operator
+ * puts there are (mkstemp makes it 0600). */
 static bool publish(const char *dir, const char *name, const char *src, const char *text, char *err, size_t errcap)
 {
     char tmp[PATH_MAX], dst[PATH_MAX];
@@ -102,6 +112,7 @@ static bool publish(const char *dir, const char *name, const char *src, const ch
     ok = ok && (in == NULL || !ferror(in));
     if (in != NULL)
         fclose(in);
+    ok = ok && fflush(out) == 0 && fchmod(fd, 0644) == 0 && fsync(fd) == 0;
     if (out != NULL)
         ok = (fclose(out) == 0) && ok;
     else if (fd >= 0)
@@ -249,11 +260,12 @@ static bool same_bytes(const char *a, const char *b)
 
 /* ---- saving and removing ---- */
 
-/* What an upload will write (own, stamp 0) and use of the folder, from its
- * stage; FOLDER_CONFLICT (err set) at a part that would overwrite a file
- * with other bytes that `before` does not own. */
-static folder_result plan_save(const char *dir, const char *stage, const char *model, const char *final,
-                               const record *before, record *now, char *err, size_t errcap)
+/* What an upload of `name` will write (own, stamp 0) and use of the folder,
+ * from its stage; FOLDER_CONFLICT (err set) at a part that would overwrite a
+ * file with other bytes that `before` does not own, or that another
+ * upload's record names. */
+static folder_result plan_save(const char *dir, const char *name, const char *stage, const char *model,
+                               const char *final, const record *before, record *now, char *err, size_t errcap)
 {
     char src[PATH_MAX], dst[PATH_MAX];
     now->n = 0;
@@ -271,16 +283,20 @@ static folder_result plan_save(const char *dir, const char *stage, const char *m
         snprintf(dst, sizeof dst, "%s/%s", dir, ent->d_name);
         const record_entry *was = record_find(before, ent->d_name);
         struct stat st;
-        if (lstat(dst, &st) != 0 || (was != NULL && entry_still_own(dir, was))) {
+        /* a file this model's upload wrote is its own to write again, unless
+         * another upload uses it and would get other bytes */
+        bool ours = was != NULL && entry_still_own(dir, was);
+        bool shared = ours && other_record_names(dir, name, ent->d_name);
+        if (lstat(dst, &st) != 0 || (ours && !shared)) {
             record_add(now, ent->d_name, true, 0);
         } else if (same_bytes(src, dst)) {
-            record_add(now, ent->d_name, false, 0);
+            record_add(now, ent->d_name, ours, 0);
         } else {
             res = FOLDER_CONFLICT;
             snprintf(err, errcap,
-                     "'%s' is in the models folder already, with other contents, and this model's uploads did "
-                     "not write it: give the file another name (and the .obj's mtllib line) and upload again",
-                     ent->d_name);
+                     "'%s' is in the models folder already, with other contents, and %s: give the file another "
+                     "name (and the .obj's mtllib line) and upload again",
+                     ent->d_name, shared ? "another upload's model uses it" : "this model's uploads did not write it");
         }
     }
     closedir(d);
@@ -300,7 +316,7 @@ folder_result folder_save_upload(const char *dir, const char *name, const char *
     snprintf(final, sizeof final, "%s%s", name, ext);
     record before, now, pending;
     record_read(dir, name, &before);
-    folder_result res = plan_save(dir, stage, model, final, &before, &now, err, errcap);
+    folder_result res = plan_save(dir, name, stage, model, final, &before, &now, err, errcap);
     if (res != FOLDER_SAVED)
         return res;
     snprintf(file, cap, "%s/%s", dir, final);
@@ -323,6 +339,12 @@ folder_result folder_save_upload(const char *dir, const char *name, const char *
     }
     if (!ok || !record_write(dir, name, &now, err, errcap))
         return FOLDER_FAILED;
+    /* the renames themselves on disk before the upload is answered */
+    int dfd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (dfd >= 0) {
+        fsync(dfd);
+        close(dfd);
+    }
     remove_own(dir, name, &before, &now);
     for (int i = 0; i < FOLDER_NEXTS; i++)
         if (strcmp(folder_model_exts[i], ext) != 0) {

@@ -52,8 +52,11 @@ static bool parts_open_dir(http_req *r)
     if (tmp == NULL || tmp[0] != '/')
         tmp = "/tmp";
     int n = snprintf(u->dir, sizeof u->dir, "%s/arbord-upload-XXXXXX", tmp);
-    if (n < 0 || (size_t)n >= sizeof u->dir || mkdtemp(u->dir) == NULL) {
+    bool fits = n >= 0 && (size_t)n < sizeof u->dir;
+    if (!fits || mkdtemp(u->dir) == NULL) {
+        int why = fits ? errno : ENAMETOOLONG; /* for the caller's message, past free */
         free(u);
+        errno = why;
         return false;
     }
     r->parts = u;

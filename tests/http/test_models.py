@@ -83,6 +83,7 @@ def test_upload_put_obj_then_render_and_list():
     d = upload_daemon()
     j = expect_json(put(d, "cube", CUBE_OBJ), 201)
     _model_ok(j, "cube", 12, 8, d)
+    eq(oct(os.stat(os.path.join(d.models_dir, "cube.obj")).st_mode & 0o777), "0o644", "cube.obj's mode (all read it)")
     eq(j["bounds"], {"min": [0, 0, 0], "max": [1, 1, 1]}, "cube bounds")
     names = [m["name"] for m in expect_json(d.get("/api/models"))["models"]]
     check("cube" in names, "GET /api/models after the upload lacks cube: %s" % names)
@@ -472,6 +473,14 @@ def test_shared_mtl_stays_while_an_upload_uses_it():
                                  ("mtl", "shared-lib.mtl", "text/plain", mtl)])
         j = expect_json(d.req("POST", "/api/models/" + name, body=body, headers={"Content-Type": ctype}), 201)
         check("teal" in j["materials"], "%s materials %r" % (name, j["materials"]))
+    # share-a wrote it; share-b uses it: share-a's replace may not give it other bytes
+    body, ctype = multipart([("model", "share-a.obj", "model/obj", b"mtllib shared-lib.mtl\nusemtl teal\n" + TETRA_OBJ),
+                             ("mtl", "shared-lib.mtl", "text/plain", b"newmtl teal\nKd 0.9 0.1 0.1\n")])
+    e = expect_error(d.req("POST", "/api/models/share-a?replace=1", body=body, headers={"Content-Type": ctype}), 409,
+                     "conflict")
+    check("shared-lib.mtl" in e["message"], "409 does not name the file: %r" % e["message"])
+    with open(os.path.join(d.models_dir, "shared-lib.mtl"), "rb") as f:
+        eq(f.read(), mtl, "shared-lib.mtl after the refused replace")
     expect_json(d.req("DELETE", "/api/models/share-a"))
     check(os.path.exists(os.path.join(d.models_dir, "shared-lib.mtl")),
           "deleting share-a removed shared-lib.mtl, which share-b uses")
