@@ -55,7 +55,7 @@ static void usage(FILE *out)
             "  --max-body BYTES     largest JSON body (default 1M)\n"
             "  --max-upload BYTES   largest model upload, also its decompressed size (default 256M)\n"
             "  --max-memory BYTES   memory for models and trees (default: half the physical memory)\n"
-            "  --frame-timeout S    cancel frames rendering longer (default 60; 0 = never)\n"
+            "  --frame-timeout S    cancel frames not answered S s after they arrive (default 60; 0 = never)\n"
             "  --connection-timeout S  close a connection idle or stalled this long (default 30)\n"
             "  --max-connections N  open connections at most; more wait to be accepted (default 1000)\n"
             "  --max-per-ip N       open connections from one address at most (default 512)\n"

@@ -16,7 +16,7 @@ static const char *const route_names[ROUTE_COUNT] = {
     "static", "healthz", "readyz", "metrics", "models", "model", "trees",
     "boxes",  "stats",   "render", "ray",     "bench",  "jobs",  "unknown"};
 
-static const char *const reason_names[CANCEL_REASONS] = {"superseded", "timeout", "shutdown"};
+static const char *const reason_names[CANCEL_REASONS] = {"superseded", "timeout", "shutdown", "client_gone"};
 
 const char *route_name(http_route r)
 {

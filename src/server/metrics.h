@@ -39,7 +39,7 @@ typedef enum {
 #define METRICS_STATUSES 20
 #define METRICS_FRAME_WINDOW 1024
 
-typedef enum { CANCEL_SUPERSEDED, CANCEL_TIMEOUT, CANCEL_SHUTDOWN, CANCEL_REASONS } cancel_reason;
+typedef enum { CANCEL_SUPERSEDED, CANCEL_TIMEOUT, CANCEL_SHUTDOWN, CANCEL_CLIENT_GONE, CANCEL_REASONS } cancel_reason;
 
 typedef struct {
     uint64_t counts[METRICS_BUCKETS + 1];  /* the last is +Inf */

@@ -16,10 +16,12 @@
  * render_req is answered exactly once: `answered` is set under the lock by
  * whoever answers.
  */
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
 
 #include "arbor/png.h"
 #include "arbor/sys.h"
@@ -38,6 +40,7 @@ struct render_req {
     arbor_frame *frame;
     atomic_int refs;              /* the answer path, and a pending build's callback */
     double admitted_ms, tree_ms, submitted_ms;
+    int fd;                       /* the client's socket, open while rr is suspended; -1: unknown */
     /* protected by srv->lock */
     rr_state state;
     bool answered;
@@ -106,6 +109,9 @@ static void reply_cancelled(render_req *rr)
     case CANCEL_TIMEOUT:
         http_reply_error(r, 503, "timeout", "frame cancelled after %g s (--frame-timeout)",
                          rr->srv->config.frame_timeout_s);
+        break;
+    case CANCEL_CLIENT_GONE: /* for the access log: no one reads it */
+        http_reply_error(r, 503, "client_gone", "frame cancelled: the client closed its connection");
         break;
     default: http_reply_error(r, 503, "busy", "frame cancelled: the daemon is shutting down"); break;
     }
@@ -321,8 +327,22 @@ static bool past_deadline(const render_req *rr, const void *arg)
     return !rr->cancelled && now - rr->admitted_ms > limit;
 }
 
+/* Whether rr's client has closed its connection (or its sending side):
+ * libmicrohttpd watches no suspended connection, so without this a frame
+ * nobody waits for would hold its worker and its queue slot to the end. */
+static bool client_gone(const render_req *rr, const void *arg)
+{
+    (void)arg;
+    if (rr->cancelled || rr->fd < 0)
+        return false;
+    char c;
+    ssize_t n = recv(rr->fd, &c, 1, MSG_PEEK | MSG_DONTWAIT); /* 0: the end of its stream */
+    return n == 0 || (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR);
+}
+
 void frames_reap(arbor_server *s, double now_ms)
 {
+    cancel_where(s, client_gone, NULL, CANCEL_CLIENT_GONE);
     if (s->config.frame_timeout_s > 0.0)
         cancel_where(s, past_deadline, &now_ms, CANCEL_TIMEOUT);
 }
@@ -434,6 +454,8 @@ void route_render(http_req *r)
     }
     rr->admitted_ms = arbor_now_ms();
     rr->http = r;
+    const union MHD_ConnectionInfo *ci = MHD_get_connection_info(r->conn, MHD_CONNECTION_INFO_CONNECTION_FD);
+    rr->fd = ci != NULL ? ci->connect_fd : -1;
     /* Suspended before anyone else can see rr, so that no resume comes first. */
     http_suspend(r);
     if (!admit(s, rr)) {

@@ -1,6 +1,7 @@
 """Build once under concurrent first requests; a full queue answers 503 at once; stream keys; timeouts."""
 import os
 import re
+import socket
 import threading
 import time
 
@@ -208,6 +209,34 @@ def test_frame_timeout_503():
         samples, _ = d.metrics()
         c = metric_value(samples, "arbor_frames_cancelled_total") or 0
         check(c >= 1, "arbor_frames_cancelled_total %r after a timeout" % c)
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+@test
+def test_frame_of_a_client_that_left_is_cancelled():
+    """A client that closes its connection mid-frame cancels the frame (reason client_gone), though
+    libmicrohttpd watches no suspended connection: its worker and queue slot are free again, and the
+    frame is not counted as served."""
+    d = Daemon([our("menger.obj")], ["--threads", "1", "--frame-timeout", "0", "--max-pixels", "256M"],
+               name="client-gone daemon")
+    try:
+        s = socket.create_connection(("127.0.0.1", d.port))
+        s.sendall(b"GET /api/render?model=menger&mode=ao&ao_samples=16&width=4096&height=4096 HTTP/1.1\r\nHost: x\r\n\r\n")
+        _wait_queue(d, 1)
+        s.close()
+        end = time.time() + 30
+        while True:
+            samples, _ = d.metrics()
+            gone = metric_value(samples, "arbor_frames_cancelled_total", reason="client_gone")
+            if gone == 1 and metric_value(samples, "arbor_frames_rendering") == 0:
+                break
+            check(time.time() < end, "the frame of the client that left goes on: %r, rendering %r"
+                  % (gone, metric_value(samples, "arbor_frames_rendering")))
+            time.sleep(0.1)
+        eq(metric_value(samples, "arbor_frames_total") or 0, 0, "frames counted as served")
+        expect_ok(d.post("/api/render", {"model": "menger", "width": 16, "height": 16}))
         d.stop_clean()
     finally:
         d.cleanup()
