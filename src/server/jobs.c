@@ -24,6 +24,9 @@
 #include "http.h"
 
 #define JOBS_KEPT 64
+/* Jobs queued behind the running one at most: each holds its model in
+ * memory, and one job can take minutes. */
+#define JOBS_QUEUED_MAX 8
 #define JOB_RUNS_MAX 20
 
 typedef enum { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_FAILED, JOB_CANCELLED } job_state;
@@ -352,6 +355,16 @@ void route_bench(http_req *r)
     atomic_init(&j->cancel, false);
     j->created_ms = arbor_now_ms();
     pthread_mutex_lock(&t->lock);
+    uint32_t queued = 0;
+    for (const job *q = t->jobs; q != NULL; q = q->next)
+        queued += q->state == JOB_QUEUED;
+    if (queued >= JOBS_QUEUED_MAX) {
+        pthread_mutex_unlock(&t->lock);
+        job_free(j);
+        http_reply_error(r, 503, "busy", "%d bench jobs are queued: try again when one has run", JOBS_QUEUED_MAX);
+        http_reply_header(r, "Retry-After", "10");
+        return;
+    }
     j->id = t->next_id++;
     j->state = JOB_QUEUED;
     j->next = t->jobs;

@@ -98,6 +98,31 @@ def test_bench_job_ids_name_one_daemons_jobs():
 
 
 @test
+def test_bench_jobs_queued_are_bounded():
+    """Past 8 jobs queued behind the running one, POST /api/bench is 503 busy with Retry-After, and the
+    queued jobs can be cancelled."""
+    d = Daemon([our("cornell.obj")], ["--threads", "1"], name="bench queue daemon")
+    try:
+        body = {"model": "cornell", "accel": ["bvh", "kd"], "builder": ["spatial", "median", "mean", "sah"],
+                "runs": 20}
+        rs = [d.post("/api/bench", body) for _ in range(10)]
+        ids = [expect_json(r, 202)["id"] for r in rs if r.status == 202]
+        # 8 queued, and one more when the first had started when the ninth came
+        check(len(ids) in (8, 9) and [r.status for r in rs] == [202] * len(ids) + [503] * (10 - len(ids)),
+              "statuses of 10 jobs: %r" % [r.status for r in rs])
+        expect_error(rs[-1], 503, "busy")
+        check(rs[-1].header("Retry-After"), "503 without Retry-After")
+        for jid in ids:
+            expect_json(d.req("DELETE", "/api/jobs/%s" % jid))
+        for jid in ids:
+            _poll(d, jid, ("cancelled", "done", "failed"), 30)
+        expect_json(d.post("/api/bench", dict(body, runs=1, accel=["bvh"], builder=["median"])), 202)
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+@test
 def test_bench_job_cancel():
     d = main_daemon()
     j = expect_json(d.post("/api/bench", {"model": "menger", "accel": ["bvh", "kd"],
