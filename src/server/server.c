@@ -594,6 +594,19 @@ static void dispatch(http_req *r, const char *path)
 
 /* ---- the access log ---- */
 
+/* A request's own bytes (method, path) in the text log, control bytes and
+ * the backslash as \xNN: a client must not write terminal escapes or
+ * forged lines into the operator's log. */
+static void log_text_field(const char *text)
+{
+    for (const unsigned char *p = (const unsigned char *)text; *p != '\0'; p++) {
+        if (*p < 0x20 || *p == 0x7f || *p == '\\')
+            fprintf(stderr, "\\x%02x", *p);
+        else
+            fputc(*p, stderr);
+    }
+}
+
 static void log_request(const arbor_server *s, const http_req *r, double ms)
 {
     char when[32];
@@ -619,8 +632,13 @@ static void log_request(const arbor_server *s, const http_req *r, double ms)
         cJSON_Delete(o);
         json_oom = false; /* the log's own failure; no answer is missing a part */
     } else {
-        fprintf(stderr, "%s %s %s %s %u %" PRIu64 "B %.1fms\n", when, r->id, r->method, r->url ? r->url : "",
-                r->status, r->bytes, ms);
+        flockfile(stderr); /* one line, whichever threads log at once */
+        fprintf(stderr, "%s %s ", when, r->id);
+        log_text_field(r->method);
+        fputc(' ', stderr);
+        log_text_field(r->url != NULL ? r->url : "");
+        fprintf(stderr, " %u %" PRIu64 "B %.1fms\n", r->status, r->bytes, ms);
+        funlockfile(stderr);
     }
 }
 

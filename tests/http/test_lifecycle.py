@@ -9,8 +9,8 @@ import threading
 import time
 
 import harness
-from harness import (ARBORD, Daemon, check, eq, expect_json, expect_ok, fail, free_port, our, shared_daemons,
-                     test)
+from harness import (ARBORD, Daemon, check, eq, expect_json, expect_ok, fail, free_port, our, raw_request,
+                     shared_daemons, test)
 
 
 @test
@@ -241,6 +241,12 @@ def test_access_log_text():
                                                                                    d.stderr()[-600:]))
         check("GET" in lines[0] and "/api/models" in lines[0] and "200" in lines[0],
               "access line %r lacks method, path or status" % lines[0])
+        # a client's control bytes come out escaped: no terminal escapes, no forged lines
+        raw_request(d.port, b"G\x1b[31mET /x%0aforged\x7f HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        time.sleep(0.3)
+        err = d.stderr()
+        check("\x1b" not in err and "\x7f" not in err, "raw control bytes in the log: %r" % err[-300:])
+        check("G\\x1b[31mET" in err, "the escaped method is not in the log: %r" % err[-300:])
         d.stop_clean()
     finally:
         d.cleanup()
