@@ -23,6 +23,12 @@
 #include "arbor/vec.h"
 
 #define ARBOR_MATERIAL_NAME_MAX 64
+/* Materials a loaded model may have (the shared models have at most a few
+ * hundred), and warnings a mesh keeps: past ARBOR_MESH_WARNINGS_MAX they
+ * are counted, and arbor_mesh_finish adds one saying how many more. Both
+ * bound what a model costs to describe (the daemon's MODEL JSON). */
+#define ARBOR_MESH_MATERIALS_MAX 4096
+#define ARBOR_MESH_WARNINGS_MAX 100
 
 typedef struct {
     char name[ARBOR_MATERIAL_NAME_MAX];
@@ -54,6 +60,7 @@ typedef struct {
     arbor_aabb bounds;     /* of the vertices triangles use */
     char **warnings;       /* nwarnings owned strings */
     uint32_t nwarnings;
+    uint32_t warnings_dropped; /* past ARBOR_MESH_WARNINGS_MAX, until arbor_mesh_finish */
     /* capacities of the growable arrays above (loader bookkeeping) */
     uint32_t cap_verts, cap_tris, cap_mats, cap_warnings;
 } arbor_mesh;

@@ -120,7 +120,9 @@ void material_name(char name[ARBOR_MATERIAL_NAME_MAX], const char *w, size_t n);
 int64_t material_table_find(const material_table *t, const char *name);
 
 /* Appends a material with default values to the mesh and the table. */
-bool material_table_add(material_table *t, const char *name, uint32_t *index, arbor_err *e);
+/* At most ARBOR_MESH_MATERIALS_MAX materials: past it a parse error at c's
+ * line. */
+bool material_table_add(material_table *t, const text_cursor *c, const char *name, uint32_t *index, arbor_err *e);
 
 /* Reads the MTL file at path into the table's mesh: new names are appended,
  * names already present get the file's values. A file that cannot be read is

@@ -2,6 +2,7 @@
  * mesh.c - growing, finishing and freeing triangle meshes
  * (see include/arbor/mesh.h).
  */
+#include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -143,18 +144,28 @@ int arbor_mesh_find_material(const arbor_mesh *m, const char *name)
     return -1;
 }
 
-void arbor_mesh_warn(arbor_mesh *m, const char *fmt, ...)
+/* Keeps one warning (the caller has checked the cap). */
+static void mesh_keep_warning(arbor_mesh *m, const char *buf)
 {
-    char buf[512];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
     if (!grow((void **)&m->warnings, &m->cap_warnings, m->nwarnings, sizeof *m->warnings, NULL))
         return;
     char *s = strdup(buf);
     if (s != NULL)
         m->warnings[m->nwarnings++] = s;
+}
+
+void arbor_mesh_warn(arbor_mesh *m, const char *fmt, ...)
+{
+    if (m->nwarnings >= ARBOR_MESH_WARNINGS_MAX) {
+        m->warnings_dropped++;
+        return;
+    }
+    char buf[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    mesh_keep_warning(m, buf);
 }
 
 bool arbor_mesh_finish(arbor_mesh *m, arbor_err *e)
@@ -185,10 +196,22 @@ bool arbor_mesh_finish(arbor_mesh *m, arbor_err *e)
     }
     m->bounds = b;
     float size = vec3_length(vec3_sub(b.hi, b.lo));
+    if (m->ntris > 0 && !isfinite(size)) /* no camera, no ray offset, no box test can be made for it */
+        return arbor_fail(e, ARBOR_ERR_INVALID,
+                          "the model's size (its box's diagonal) overflows single precision (box %g,%g,%g .. %g,%g,%g): "
+                          "scale it into %.3g..%.3g",
+                          (double)b.lo.x, (double)b.lo.y, (double)b.lo.z, (double)b.hi.x, (double)b.hi.y,
+                          (double)b.hi.z, (double)ARBOR_SIZE_MIN, (double)ARBOR_SIZE_MAX);
     if (m->ntris > 0 && !arbor_size_traceable(size))
         arbor_mesh_warn(m, "the model's size (its box's diagonal) is %.3g, outside %.3g..%.3g where single-precision "
                            "ray tests stay exact: rays may miss its triangles (scale it into that range)",
                         (double)size, (double)ARBOR_SIZE_MIN, (double)ARBOR_SIZE_MAX);
+    if (m->warnings_dropped > 0) {
+        char more[96];
+        snprintf(more, sizeof more, "%u more warnings not listed", m->warnings_dropped);
+        m->warnings_dropped = 0;
+        mesh_keep_warning(m, more);
+    }
     return true;
 }
 

@@ -77,8 +77,10 @@ static bool table_reserve(material_table *t, uint32_t nmats, arbor_err *e)
     return true;
 }
 
-bool material_table_add(material_table *t, const char *name, uint32_t *index, arbor_err *e)
+bool material_table_add(material_table *t, const text_cursor *c, const char *name, uint32_t *index, arbor_err *e)
 {
+    if (t->m->nmats >= ARBOR_MESH_MATERIALS_MAX)
+        return text_fail(c, e, "more than %d materials", ARBOR_MESH_MATERIALS_MAX);
     if (!table_reserve(t, t->m->nmats + 1, e) || !arbor_mesh_add_material(t->m, name, index, e))
         return false;
     t->slots[find_slot(t, name)] = *index + 1;
@@ -109,7 +111,7 @@ static bool new_material(mtl_reader *r, arbor_err *e)
         return true;
     }
     uint32_t index;
-    if (!material_table_add(r->table, name, &index, e))
+    if (!material_table_add(r->table, &r->c, name, &index, e))
         return false;
     r->current = index;
     return true;

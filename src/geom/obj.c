@@ -184,7 +184,7 @@ static bool use_material(obj_reader *r, arbor_err *e)
         return true;
     }
     arbor_mesh_warn(r->m, "%s:%u: material '%s' is not defined; using default values", r->c.name, r->c.line, name);
-    return material_table_add(&r->mats, name, &r->mat, e);
+    return material_table_add(&r->mats, &r->c, name, &r->mat, e);
 }
 
 /* True when the real path `real` lies inside the real folder `dir`. */
@@ -343,7 +343,7 @@ bool arbor_load_obj_text(const char *text, size_t len, const char *name, const c
     text_cursor_init(&r.c, text, len, name);
     material_table_init(&r.mats, m);
     /* material 0 is the default, for faces before any usemtl */
-    bool ok = material_table_add(&r.mats, "default", &r.mat, e);
+    bool ok = material_table_add(&r.mats, &r.c, "default", &r.mat, e);
     while (ok && r.c.p < r.c.end) {
         const char *w;
         size_t n = text_word(&r.c, &w);

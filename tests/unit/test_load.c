@@ -635,6 +635,69 @@ static void test_unknown_obj_statements_are_a_warning(void)
     arbor_mesh_free(&m);
 }
 
+/* An OBJ of n triangles, each after "usemtl m<i % names>": undefined
+ * materials, each a warning and a material. Owned by the caller. */
+static char *obj_of_usemtl(int n, int names)
+{
+    size_t cap = 64 + (size_t)n * 48, len = 0;
+    char *t = malloc(cap);
+    TEST_ASSERT_NOT_NULL(t);
+    len += (size_t)snprintf(t + len, cap - len, "v 0 0 0\nv 1 0 0\nv 0 1 0\n");
+    for (int i = 0; i < n; i++)
+        len += (size_t)snprintf(t + len, cap - len, "usemtl m%d\nf 1 2 3\n", i % names);
+    return t;
+}
+
+/* Warnings past ARBOR_MESH_WARNINGS_MAX are counted in one last warning,
+ * so a hostile file cannot make a model's description unbounded. */
+static void test_warnings_are_capped_and_counted(void)
+{
+    char *text = obj_of_usemtl(300, 300);
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(load_obj(text, &m, &e), e.msg);
+    TEST_ASSERT_EQUAL_UINT32(300, m.ntris);
+    TEST_ASSERT_EQUAL_UINT32(301, m.nmats);
+    TEST_ASSERT_EQUAL_UINT32(ARBOR_MESH_WARNINGS_MAX + 1, m.nwarnings);
+    TEST_ASSERT_TRUE_MESSAGE(has_warning(&m, "t.obj:4: material 'm0' is not defined"), m.warnings[0]);
+    TEST_ASSERT_EQUAL_STRING("200 more warnings not listed", m.warnings[m.nwarnings - 1]);
+    arbor_mesh_free(&m);
+    free(text);
+}
+
+/* More than ARBOR_MESH_MATERIALS_MAX materials is an error at the line of
+ * the one too many; as many as that is a model. */
+static void test_materials_are_capped(void)
+{
+    char *text = obj_of_usemtl(ARBOR_MESH_MATERIALS_MAX - 1, ARBOR_MESH_MATERIALS_MAX - 1);
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(load_obj(text, &m, &e), e.msg);
+    TEST_ASSERT_EQUAL_UINT32(ARBOR_MESH_MATERIALS_MAX, m.nmats); /* the default and the names */
+    arbor_mesh_free(&m);
+    free(text);
+    text = obj_of_usemtl(ARBOR_MESH_MATERIALS_MAX, ARBOR_MESH_MATERIALS_MAX);
+    char line[64];
+    snprintf(line, sizeof line, "t.obj:%d: more than %d materials", 3 + 2 * ARBOR_MESH_MATERIALS_MAX - 1,
+             ARBOR_MESH_MATERIALS_MAX);
+    assert_obj_fails(text, line);
+    free(text);
+}
+
+/* A model whose box's diagonal overflows single precision has no camera,
+ * ray offset or box test: refused, not loaded to render NaN. */
+static void test_a_model_too_large_for_floats_is_refused(void)
+{
+    arbor_mesh m;
+    arbor_err e;
+    TEST_ASSERT_FALSE(load_obj("v -1e38 -1e38 -1e38\nv 1e38 1e38 1e38\nv 1e38 -1e38 0\nf 1 2 3\n", &m, &e));
+    assert_error(&e, ARBOR_ERR_INVALID, "overflows single precision");
+    TEST_ASSERT_TRUE_MESSAGE(load_obj("v -1e15 -1e15 -1e15\nv 1e15 1e15 1e15\nv 1e15 -1e15 0\nf 1 2 3\n", &m, &e),
+                             e.msg);
+    TEST_ASSERT_TRUE_MESSAGE(has_warning(&m, "outside"), m.nwarnings ? m.warnings[0] : "no warning");
+    arbor_mesh_free(&m);
+}
+
 /* Binary bytes after a valid model: the file is not OBJ, whatever came first. */
 static void test_binary_data_in_obj_is_an_error(void)
 {
@@ -1313,6 +1376,9 @@ int main(void)
     RUN_TEST(test_crlf_tabs_comments_and_skipped_statements);
     RUN_TEST(test_every_skipped_obj_statement_is_silent);
     RUN_TEST(test_unknown_obj_statements_are_a_warning);
+    RUN_TEST(test_warnings_are_capped_and_counted);
+    RUN_TEST(test_materials_are_capped);
+    RUN_TEST(test_a_model_too_large_for_floats_is_refused);
     RUN_TEST(test_binary_data_in_obj_is_an_error);
     RUN_TEST(test_faces_before_usemtl_use_the_default_material);
     RUN_TEST(test_mtl_values_reach_the_materials_faces_use);
