@@ -75,6 +75,7 @@ struct http_req {
     /* the body, up to `limit` bytes */
     char *body;
     size_t body_len, body_cap, limit;
+    uint64_t body_seen;              /* every body byte read, kept or not */
     bool too_large;
     bool upload;                     /* a PUT or POST of a model: the body goes to models.c */
     struct MHD_PostProcessor *post;

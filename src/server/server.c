@@ -28,6 +28,9 @@
 #include "http.h"
 
 #define REAPER_PERIOD_MS 100
+/* Bytes of a body over its limit read and dropped before the 413 is sent
+ * and the connection closed. */
+#define BODY_DRAIN_MAX (16u << 20)
 #define DRAIN_MS 3000
 
 /* ---- JSON ---- */
@@ -827,8 +830,18 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
     }
     if (*upload_data_size > 0) {
         on_body(r, upload_data, *upload_data_size);
+        r->body_seen += *upload_data_size;
         *upload_data_size = 0;
-        return MHD_YES;
+        if (r->body_seen <= (uint64_t)r->limit + BODY_DRAIN_MAX)
+            return MHD_YES;
+        /* Past the limit (or an answer made mid-body) the body is read and
+         * dropped, so that the client, done sending, reads the answer; past
+         * the drain the answer goes now and the connection closes after it,
+         * or an endless chunked body would hold the connection for ever. */
+        if (r->response == NULL)
+            http_reply_error(r, 413, "too_large", "the body is over the limit of %zu bytes", r->limit);
+        http_reply_header(r, MHD_HTTP_HEADER_CONNECTION, "close");
+        return queue_reply(r);
     }
     if (r->suspended) {
         /* Resumed: a worker has replied, or sync.c has loaded the model the

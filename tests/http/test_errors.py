@@ -2,6 +2,7 @@
 import json
 import os
 import re
+import socket
 
 from harness import (add_test, check, eq, expect_error, expect_ok, limits_daemon, main_daemon, test)
 
@@ -322,3 +323,25 @@ def test_error_413_on_chunked_body():
         eq(json.loads(body)["error"]["code"], "too_large", "error code")
     finally:
         conn.close()
+
+
+@test
+def test_error_endless_chunked_body_is_cut_off():
+    """A chunked body that never ends is not read for ever: some megabytes past the limit the daemon
+    answers and closes the connection, and goes on serving."""
+    d = limits_daemon()
+    s = socket.create_connection((d.host, d.port), timeout=30)
+    sent, err = 0, None
+    try:
+        s.sendall(b"POST /api/render HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n")
+        chunk = b"10000\r\n" + b" " * 0x10000 + b"\r\n"
+        while sent < (256 << 20):
+            s.sendall(chunk)
+            sent += 0x10000
+    except OSError as e:
+        err = e
+    finally:
+        s.close()
+    check(err is not None, "the daemon read all of a %d MB body over a 4 KB limit" % (sent >> 20))
+    check(sent < (64 << 20), "the daemon read %d MB before closing" % (sent >> 20))
+    expect_ok(d.get("/healthz"))
