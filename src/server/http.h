@@ -29,6 +29,7 @@ typedef struct render_req render_req;
 typedef struct job_table job_table;
 typedef struct sync_load sync_load;
 typedef struct sync_bad sync_bad;
+typedef struct upload_job upload_job;
 
 
 struct arbor_server {
@@ -55,6 +56,8 @@ struct arbor_server {
     uint32_t inflight;              /* requests suspended, waiting for a worker */
     sync_load *loads;               /* models being loaded from the shared folder (sync.c) */
     sync_bad *bad;                  /* folder files that failed to load (sync.c) */
+    upload_job *uploads_waiting;    /* uploads queued behind the one loading (models.c) */
+    bool upload_running;
     uint64_t next_request_id;
 
     pthread_t reaper;               /* cancels frames past --frame-timeout */

@@ -226,11 +226,13 @@ bool models_post_data(http_req *r, const char *data, size_t size)
 
 /* ---- loading, on a worker ---- */
 
-typedef struct {
+struct upload_job {
+    arbor_server *srv;
     http_req *http;
     char name[ARBOR_MODEL_NAME_MAX + 1];
     bool replace;
-} upload_job;
+    upload_job *next;     /* in srv->uploads_waiting */
+};
 
 /* The path of the upload's model part. */
 static const char *path_of_part(const upload_parts *u, char *path, size_t cap)
@@ -418,9 +420,44 @@ static void upload_run(void *ctx, uint32_t task)
     http_resume(r);
 }
 
+/* Uploads are loaded one at a time, in the order they arrived: each parses
+ * its whole file into memory (eight at once took 1.4 GB of a hostile
+ * gzip's faces), and each takes a worker from the frames. upload_line
+ * queues a job, or starts it when none runs; a job's release starts the
+ * next, whether it ran or could not be queued. */
 static void upload_free(void *ctx)
 {
-    free(ctx);
+    upload_job *j = ctx;
+    arbor_server *s = j->srv;
+    free(j);
+    pthread_mutex_lock(&s->lock);
+    upload_job *next = s->uploads_waiting;
+    if (next != NULL)
+        s->uploads_waiting = next->next;
+    else
+        s->upload_running = false;
+    pthread_mutex_unlock(&s->lock);
+    if (next != NULL)
+        http_queue(next->http, upload_run, upload_free, next);
+}
+
+static void upload_line(http_req *r, upload_job *j)
+{
+    arbor_server *s = r->srv;
+    http_suspend(r);
+    pthread_mutex_lock(&s->lock);
+    bool now = !s->upload_running;
+    if (now) {
+        s->upload_running = true;
+    } else {
+        upload_job **end = &s->uploads_waiting;
+        while (*end != NULL)
+            end = &(*end)->next;
+        *end = j;
+    }
+    pthread_mutex_unlock(&s->lock);
+    if (now)
+        http_queue(r, upload_run, upload_free, j);
 }
 
 static void upload(http_req *r, const char *name)
@@ -461,10 +498,11 @@ static void upload(http_req *r, const char *name)
         http_reply_error(r, 507, "insufficient_memory", "out of memory");
         return;
     }
+    j->srv = r->srv;
     j->http = r;
     snprintf(j->name, sizeof j->name, "%s", name);
     j->replace = replace;
-    http_on_pool(r, upload_run, upload_free, j);
+    upload_line(r, j);
 }
 
 /* ---- the routes ---- */
