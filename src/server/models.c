@@ -231,8 +231,11 @@ struct upload_job {
     http_req *http;
     char name[ARBOR_MODEL_NAME_MAX + 1];
     bool replace;
+    bool ran;             /* upload_run has handed the line on */
     upload_job *next;     /* in srv->uploads_waiting */
 };
+
+static void upload_next(arbor_server *s);
 
 /* The path of the upload's model part. */
 static const char *path_of_part(const upload_parts *u, char *path, size_t cap)
@@ -417,19 +420,31 @@ static void upload_run(void *ctx, uint32_t task)
     }
     arbor_mesh_free(&mesh);
     models_parts_free(r);
+    /* the next upload starts while r still holds the server up: once r is
+     * resumed, a stopping daemon may free it */
+    j->ran = true;
+    upload_next(s);
     http_resume(r);
 }
 
 /* Uploads are loaded one at a time, in the order they arrived: each parses
  * its whole file into memory (eight at once took 1.4 GB of a hostile
  * gzip's faces), and each takes a worker from the frames. upload_line
- * queues a job, or starts it when none runs; a job's release starts the
- * next, whether it ran or could not be queued. */
+ * queues a job, or starts it when none runs; upload_next starts the next,
+ * from the end of upload_run, or from the release of a job that never ran
+ * (http_queue releases it before it resumes the request). */
 static void upload_free(void *ctx)
 {
     upload_job *j = ctx;
     arbor_server *s = j->srv;
+    bool ran = j->ran;
     free(j);
+    if (!ran)
+        upload_next(s);
+}
+
+static void upload_next(arbor_server *s)
+{
     pthread_mutex_lock(&s->lock);
     upload_job *next = s->uploads_waiting;
     if (next != NULL)

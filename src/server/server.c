@@ -199,10 +199,12 @@ void http_queue(http_req *r, void (*run)(void *ctx, uint32_t task), void (*relea
         return;
     }
     if (!arbor_pool_submit(r->srv->pool, job, &e)) {
+        arbor_job_release(job); /* releases ctx: before r is resumed, which may let the server go */
         http_reply_error(r, 503, "busy", "the daemon is shutting down");
         http_resume(r);
+        return;
     }
-    arbor_job_release(job); /* releases ctx when the job could not be queued */
+    arbor_job_release(job);
 }
 
 void http_on_pool(http_req *r, void (*run)(void *ctx, uint32_t task), void (*release)(void *ctx), void *ctx)
@@ -835,13 +837,14 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
         if (r->body_seen <= (uint64_t)r->limit + BODY_DRAIN_MAX)
             return MHD_YES;
         /* Past the limit (or an answer made mid-body) the body is read and
-         * dropped, so that the client, done sending, reads the answer; past
-         * the drain the answer goes now and the connection closes after it,
-         * or an endless chunked body would hold the connection for ever. */
+         * dropped, so that the client, done sending, reads the answer. Past
+         * the drain the connection is closed unanswered (libmicrohttpd
+         * queues no answer while a body still comes in), or an endless
+         * chunked body would hold it for ever; the access log has the 413
+         * it earned. */
         if (r->response == NULL)
             http_reply_error(r, 413, "too_large", "the body is over the limit of %zu bytes", r->limit);
-        http_reply_header(r, MHD_HTTP_HEADER_CONNECTION, "close");
-        return queue_reply(r);
+        return MHD_NO;
     }
     if (r->suspended) {
         /* Resumed: a worker has replied, or sync.c has loaded the model the

@@ -18,8 +18,9 @@
  * not read again until it changes: GET /api/models lists the others, and a
  * request for that name is answered the load's error (a model the store had
  * under that name, from an older file, is unloaded: the daemons sharing the
- * folder must not answer two versions). A load refused for memory is tried
- * again after SYNC_RETRY_MS, since room may have been made meanwhile.
+ * folder must not answer two versions). A load that failed for another
+ * reason than the file's contents (memory, a read error) is tried again
+ * after SYNC_RETRY_MS, since its cause may have passed meanwhile.
  *
  * The checks are stat(2) calls on the polling thread (metadata only: no
  * file is read there); reading and parsing happen on the pool.
@@ -55,7 +56,8 @@ struct sync_load {
     struct sync_load *next;   /* srv->loads, protected by srv->lock */
 };
 
-/* How long a load refused for memory stands before it is tried again. */
+/* How long a load that failed for memory or I/O stands before it is tried
+ * again. */
 #define SYNC_RETRY_MS 5000.0
 
 struct sync_bad {
@@ -123,8 +125,10 @@ static bool bad_remember(const sync_load *l, const arbor_err *e)
     snprintf(b->name, sizeof b->name, "%s", l->name);
     snprintf(b->path, sizeof b->path, "%s", l->path);
     b->stamp = l->stamp;
-    bool memory = e->status == ARBOR_ERR_NOSPACE || e->status == ARBOR_ERR_NOMEM;
-    b->retry_ms = memory ? arbor_now_ms() + SYNC_RETRY_MS : INFINITY;
+    /* what the file holds fails until it changes; anything else (memory,
+     * a read error, a permission the operator then mends) may pass later */
+    bool lasting = e->status == ARBOR_ERR_PARSE || e->status == ARBOR_ERR_INVALID;
+    b->retry_ms = lasting ? INFINITY : arbor_now_ms() + SYNC_RETRY_MS;
     b->err = *e;
     pthread_mutex_lock(&s->lock);
     for (sync_bad **p = &s->bad; *p != NULL; p = &(*p)->next)
@@ -187,6 +191,14 @@ static void bad_reply(http_req *r, const char *name, const char *path, const arb
 static void load_answer(sync_load *l, bool ok, const arbor_err *e)
 {
     arbor_server *s = l->srv;
+    /* A file replaced or deleted while it was read (another request, or
+     * another daemon, changed the folder) is no fault of the file: the
+     * waiters look again and find what is there now. A file that fails is
+     * remembered, and the waiters look again too: a listing then passes it
+     * by, and a request for it gets its error (settle). Remembered before
+     * the load leaves s->loads, so that no request between starts it again. */
+    bool changed = !ok && arbor_file_stamp(l->path) != l->stamp;
+    bool remembered = !ok && !changed && e->status != ARBOR_ERR_CANCELLED && bad_remember(l, e);
     pthread_mutex_lock(&s->lock);
     for (sync_load **p = &s->loads; *p != NULL; p = &(*p)->next)
         if (*p == l) {
@@ -196,13 +208,6 @@ static void load_answer(sync_load *l, bool ok, const arbor_err *e)
     waiter *w = l->waiters;
     l->waiters = NULL;
     pthread_mutex_unlock(&s->lock);
-    /* A file replaced or deleted while it was read (another request, or
-     * another daemon, changed the folder) is no fault of the file: the
-     * waiters look again and find what is there now. A file that fails is
-     * remembered, and the waiters look again too: a listing then passes it
-     * by, and a request for it gets its error (settle). */
-    bool changed = !ok && arbor_file_stamp(l->path) != l->stamp;
-    bool remembered = !ok && !changed && e->status != ARBOR_ERR_CANCELLED && bad_remember(l, e);
     while (w != NULL) {
         waiter *next = w->next;
         if (ok || changed || remembered)

@@ -328,7 +328,7 @@ def test_error_413_on_chunked_body():
 @test
 def test_error_endless_chunked_body_is_cut_off():
     """A chunked body that never ends is not read for ever: some megabytes past the limit the daemon
-    answers and closes the connection, and goes on serving."""
+    closes the connection, and goes on serving."""
     d = limits_daemon()
     s = socket.create_connection((d.host, d.port), timeout=30)
     sent, err = 0, None
