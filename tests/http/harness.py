@@ -155,10 +155,15 @@ def request(port, method, path, body=None, headers=None, js=None, host="127.0.0.
 
 
 def raw_request(port, raw, host="127.0.0.1", timeout=30):
-    """Send raw bytes, read until close; returns Resp (status 0 when no HTTP answer)."""
+    """Send raw bytes (or a list of them, each its own write 50 ms after the last, as TCP may deliver
+    them), read until close; returns Resp (status 0 when no HTTP answer)."""
     s = socket.create_connection((host, port), timeout=timeout)
     try:
-        s.sendall(raw)
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        for i, piece in enumerate(raw if isinstance(raw, list) else [raw]):
+            if i > 0:
+                time.sleep(0.05)
+            s.sendall(piece)
         chunks = []
         while True:
             try:
@@ -178,8 +183,9 @@ def raw_request(port, raw, host="127.0.0.1", timeout=30):
     finally:
         s.close()
     data = b"".join(chunks)
+    what = repr(raw[0][:100] if isinstance(raw, list) else raw[:100])
     if b"\r\n\r\n" not in data:
-        return Resp(0, "", [], data, repr(raw[:100]))
+        return Resp(0, "", [], data, what)
     head, rest = data.split(b"\r\n\r\n", 1)
     lines = head.decode("latin-1").split("\r\n")
     parts = lines[0].split(" ", 2)
@@ -189,7 +195,7 @@ def raw_request(port, raw, host="127.0.0.1", timeout=30):
         if ":" in ln:
             k, v = ln.split(":", 1)
             hdrs.append((k.strip(), v.strip()))
-    return Resp(status, parts[2] if len(parts) > 2 else "", hdrs, rest, repr(raw[:100]))
+    return Resp(status, parts[2] if len(parts) > 2 else "", hdrs, rest, what)
 
 
 def expect_error(r, status, code, contains=None):

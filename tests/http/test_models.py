@@ -1,14 +1,12 @@
 """Uploads (PUT OBJ/PLY/gzip, multipart .obj + .mtl), 409 and replace, delete, while frames render."""
 import gzip
-import json
 import os
-import socket
 import struct
 import threading
 import time
 
 from harness import (Daemon, check, eq, expect_error, expect_json, expect_ok, fail, limits_daemon, multipart, parallel,
-                     our, png_of, shared, test)
+                     our, png_of, raw_request, shared, test)
 
 CUBE_OBJ = b"""# a unit cube of quads: 8 vertices, 6 faces, 12 triangles
 v 0 0 0
@@ -182,27 +180,6 @@ def test_models_named_like_routes():
         eq(expect_json(d.req("DELETE", "/api/models/" + name)), {"deleted": name}, "DELETE %s" % name)
 
 
-def _send_split(d, path, body, ctype, cut):
-    """POST body in two writes, split at byte cut, as TCP may deliver it; returns (status, JSON)."""
-    s = socket.create_connection(("127.0.0.1", d.port), timeout=30)
-    try:
-        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        s.sendall(("POST %s HTTP/1.1\r\nHost: x\r\nContent-Type: %s\r\nContent-Length: %d\r\nConnection: close\r\n\r\n"
-                   % (path, ctype, len(body))).encode() + body[:cut])
-        time.sleep(0.05)
-        s.sendall(body[cut:])
-        out = b""
-        while True:
-            c = s.recv(65536)
-            if not c:
-                break
-            out += c
-    finally:
-        s.close()
-    head, _, rest = out.partition(b"\r\n\r\n")
-    return int(head.split()[1]), json.loads(rest)
-
-
 @test
 def test_upload_multipart_split_anywhere():
     """A multipart upload whose first bytes of a part arrive alone (1-5 bytes after its headers, then the
@@ -211,8 +188,10 @@ def test_upload_multipart_split_anywhere():
     body, ctype = multipart([("model", "split.obj", "model/obj", TETRA_OBJ)])
     start = body.index(b"\r\n\r\n") + 4
     for k in range(6):
-        status, j = _send_split(d, "/api/models/split%d" % k, body, ctype, start + k)
-        eq((status, j.get("triangles")), (201, 4), "split %d bytes into the part: %r" % (k, j))
+        head = ("POST /api/models/split%d HTTP/1.1\r\nHost: x\r\nContent-Type: %s\r\nContent-Length: %d\r\n"
+                "Connection: close\r\n\r\n" % (k, ctype, len(body))).encode()
+        r = raw_request(d.port, [head + body[:start + k], body[start + k:]])
+        eq((r.status, r.json().get("triangles")), (201, 4), "split %d bytes into the part: %s" % (k, r.short()))
         expect_json(d.req("DELETE", "/api/models/split%d" % k))
 
 
