@@ -79,6 +79,10 @@ static bool part_close(upload_parts *u)
 
 void models_parts_free(http_req *r)
 {
+    if (r->post != NULL) { /* it writes into the parts */
+        MHD_destroy_post_processor(r->post);
+        r->post = NULL;
+    }
     upload_parts *u = r->parts;
     if (u == NULL)
         return;

@@ -158,9 +158,7 @@ void http_req_release(http_req *r)
         return;
     if (r->response != NULL)
         MHD_destroy_response(r->response);
-    if (r->post != NULL)
-        MHD_destroy_post_processor(r->post);
-    models_parts_free(r);
+    models_parts_free(r); /* and the post processor writing into them */
     free(r->body);
     free(r->url);
     free(r);
@@ -737,6 +735,9 @@ static void on_completed(void *cls, struct MHD_Connection *conn, void **con_cls,
 
 static enum MHD_Result queue_reply(http_req *r)
 {
+    /* An upload's temporary files go before its answer does: a client that
+     * has its answer may look, and the daemon holds nothing it no longer needs. */
+    models_parts_free(r);
     if (r->response == NULL && r->status == 0)
         http_reply_error(r, 500, "internal", "no answer was made");
     if (r->response == NULL) {
