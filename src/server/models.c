@@ -491,14 +491,10 @@ static void upload(http_req *r, const char *name)
         return;
     }
     if (r->post != NULL) {
-        /* what it still holds of the last part goes out now, and a body
-         * that ends inside a part (no closing boundary) is cut short */
+        /* MHD_NO: the body ended inside a part (no closing boundary), which
+         * may be cut anywhere */
         bool whole = MHD_destroy_post_processor(r->post) == MHD_YES;
         r->post = NULL;
-        if (u->full) {
-            http_reply_error(r, 507, "insufficient_storage", "%s", u->error);
-            return;
-        }
         if (!whole) {
             http_reply_error(r, 400, "bad_request", "the multipart body ends inside a part (no closing boundary)");
             return;

@@ -10,9 +10,9 @@
  * request to a worker, which replies and resumes.
  */
 #include <arpa/inet.h>
+#include <assert.h>
 #include <errno.h>
 #include <inttypes.h>
-#include <assert.h>
 #include <math.h>
 #include <netinet/in.h>
 #include <stdarg.h>

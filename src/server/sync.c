@@ -62,8 +62,7 @@ struct sync_load {
 
 struct sync_bad {
     char name[ARBOR_MODEL_NAME_MAX + 1];
-    char path[PATH_MAX];
-    uint64_t stamp;           /* of path when it failed */
+    uint64_t stamp;           /* of its file when it failed */
     double retry_ms;          /* arbor_now_ms() from which it is read again */
     arbor_err err;
     struct sync_bad *next;    /* srv->bad, protected by srv->lock */
@@ -114,6 +113,15 @@ bool sync_exists(arbor_server *s, const char *name)
 
 /* ---- files that failed to load ---- */
 
+/* The link to name's record in s->bad, or to the list's end (lock held). */
+static sync_bad **bad_find(arbor_server *s, const char *name)
+{
+    sync_bad **p = &s->bad;
+    while (*p != NULL && strcmp((*p)->name, name) != 0)
+        p = &(*p)->next;
+    return p;
+}
+
 /* Remembers that l's file failed with e, in place of what was known of its
  * name; false when that cannot be had (out of memory). */
 static bool bad_remember(const sync_load *l, const arbor_err *e)
@@ -123,7 +131,6 @@ static bool bad_remember(const sync_load *l, const arbor_err *e)
     if (b == NULL)
         return false;
     snprintf(b->name, sizeof b->name, "%s", l->name);
-    snprintf(b->path, sizeof b->path, "%s", l->path);
     b->stamp = l->stamp;
     /* what the file holds fails until it changes; anything else (memory,
      * a read error, a permission the operator then mends) may pass later */
@@ -131,13 +138,11 @@ static bool bad_remember(const sync_load *l, const arbor_err *e)
     b->retry_ms = lasting ? INFINITY : arbor_now_ms() + SYNC_RETRY_MS;
     b->err = *e;
     pthread_mutex_lock(&s->lock);
-    for (sync_bad **p = &s->bad; *p != NULL; p = &(*p)->next)
-        if (strcmp((*p)->name, l->name) == 0) {
-            sync_bad *old = *p;
-            *p = old->next;
-            free(old);
-            break;
-        }
+    sync_bad **p = bad_find(s, l->name), *old = *p;
+    if (old != NULL) {
+        *p = old->next;
+        free(old);
+    }
     b->next = s->bad;
     s->bad = b;
     pthread_mutex_unlock(&s->lock);
@@ -146,23 +151,16 @@ static bool bad_remember(const sync_load *l, const arbor_err *e)
 
 /* Whether name's file at stamp is known to fail (its error in *e); a
  * record of another stamp, or past its retry time, is dropped. */
-static bool bad_known(arbor_server *s, const char *name, uint64_t stamp, arbor_err *e, char *path, size_t cap)
+static bool bad_known(arbor_server *s, const char *name, uint64_t stamp, arbor_err *e)
 {
-    bool known = false;
     pthread_mutex_lock(&s->lock);
-    for (sync_bad **p = &s->bad; *p != NULL; p = &(*p)->next) {
-        sync_bad *b = *p;
-        if (strcmp(b->name, name) != 0)
-            continue;
-        known = b->stamp == stamp && arbor_now_ms() < b->retry_ms;
-        if (known) {
-            *e = b->err;
-            snprintf(path, cap, "%s", b->path);
-        } else {
-            *p = b->next;
-            free(b);
-        }
-        break;
+    sync_bad **p = bad_find(s, name), *b = *p;
+    bool known = b != NULL && b->stamp == stamp && arbor_now_ms() < b->retry_ms;
+    if (known) {
+        *e = b->err;
+    } else if (b != NULL) {
+        *p = b->next;
+        free(b);
     }
     pthread_mutex_unlock(&s->lock);
     return known;
@@ -309,14 +307,17 @@ static void unload(arbor_server *s, arbor_model *m)
 
 /* Acts on compare's verdict for one name whose model in the store is m:
  * SYNC_CURRENT (m is what the folder holds), SYNC_GONE (there is no such
- * model now; m, if any, was unloaded) or SYNC_LOAD (r is suspended for the
- * load, or answered when it could not start). */
+ * model now; m, if any, was unloaded), SYNC_LOAD (r is suspended for the
+ * load, or answered when it could not start) or SYNC_BAD (the folder's file
+ * is known to fail: its error in *bad, its path in bad_path; m, if any, was
+ * unloaded). */
 static sync_state settle(http_req *r, const char *name, arbor_model *m, arbor_err *bad, char *bad_path, size_t cap)
 {
     char path[PATH_MAX];
     uint64_t stamp = 0;
     sync_state st = compare(r->srv, name, m, path, sizeof path, &stamp);
-    if (st == SYNC_LOAD && bad_known(r->srv, name, stamp, bad, bad_path, cap)) {
+    if (st == SYNC_LOAD && bad_known(r->srv, name, stamp, bad)) {
+        snprintf(bad_path, cap, "%s", path);
         /* what this daemon had loaded is not what the folder holds now: the
          * others answer the new file, so this one cannot answer the old */
         if (m != NULL)
