@@ -22,6 +22,7 @@
 #include <strings.h>
 #include <sys/file.h>
 #include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "arbor/sys.h"
@@ -63,25 +64,37 @@ bool folder_is_material_file(const char *file)
     return ends_with(file, ".mtl");
 }
 
-bool folder_lock_take(const char *dir, int *fd, char *err, size_t errcap)
+folder_lock_result folder_lock_take(const char *dir, int wait_ms, int *fd, char *err, size_t errcap)
 {
     char path[PATH_MAX];
     snprintf(path, sizeof path, "%s/.arbord.lock", dir);
     *fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
     if (*fd < 0) {
         snprintf(err, errcap, "cannot open the models folder's lock %s: %s", path, strerror(errno));
-        return false;
+        return FOLDER_LOCK_FAILED;
     }
-    int rc;
-    while ((rc = flock(*fd, LOCK_EX)) != 0 && errno == EINTR)
-        ;
-    if (rc != 0) { /* ENOLCK: an NFS mount without locking; going on unlocked would race */
-        snprintf(err, errcap, "cannot lock the models folder's lock %s: %s", path, strerror(errno));
-        close(*fd);
-        *fd = -1;
-        return false;
+    /* polled, since flock(2) has no timeout: every 1, 2, 4 .. 64 ms */
+    double until = arbor_now_ms() + wait_ms;
+    long pause_ms = 1;
+    for (;;) {
+        if (flock(*fd, LOCK_EX | LOCK_NB) == 0)
+            return FOLDER_LOCKED;
+        if (errno != EWOULDBLOCK && errno != EINTR)
+            break; /* ENOLCK: an NFS mount without locking; going on unlocked would race */
+        if (arbor_now_ms() >= until) {
+            snprintf(err, errcap, "the models folder's lock %s has been held by another for %d ms: try again",
+                     path, wait_ms);
+            close(*fd);
+            *fd = -1;
+            return FOLDER_LOCK_BUSY;
+        }
+        nanosleep(&(struct timespec){pause_ms / 1000, pause_ms % 1000 * 1000000}, NULL);
+        pause_ms = pause_ms < 64 ? 2 * pause_ms : 64;
     }
-    return true;
+    snprintf(err, errcap, "cannot lock the models folder's lock %s: %s", path, strerror(errno));
+    close(*fd);
+    *fd = -1;
+    return FOLDER_LOCK_FAILED;
 }
 
 void folder_lock_drop(int fd)

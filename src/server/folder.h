@@ -32,9 +32,20 @@ bool folder_is_model_file(const char *file);
 /* Whether a file name is a material library's (.mtl, in any case). */
 bool folder_is_material_file(const char *file);
 
-/* Takes the folder's lock, waiting for it; false (err set) when the lock
- * file cannot be opened. Returns the descriptor to give folder_lock_drop. */
-bool folder_lock_take(const char *dir, int *fd, char *err, size_t errcap);
+/* How long folder_lock_take waits for a lock another holds. A daemon holds
+ * it while it copies one upload into the folder or removes one model's
+ * files: well under a second on a local disk. Longer means a holder that is
+ * stuck (or an operator's own flock), and the request is refused rather than
+ * left holding a worker the frames need. */
+#define FOLDER_LOCK_WAIT_MS 5000
+
+typedef enum { FOLDER_LOCKED, FOLDER_LOCK_BUSY, FOLDER_LOCK_FAILED } folder_lock_result;
+
+/* Takes the folder's lock, waiting up to wait_ms for it; on FOLDER_LOCKED
+ * *fd is the descriptor to give folder_lock_drop. FOLDER_LOCK_BUSY: another
+ * held it all that time; FOLDER_LOCK_FAILED: the lock file cannot be opened
+ * or locked. Both set err. */
+folder_lock_result folder_lock_take(const char *dir, int wait_ms, int *fd, char *err, size_t errcap);
 void folder_lock_drop(int fd);
 
 typedef enum { FOLDER_SAVED, FOLDER_CONFLICT, FOLDER_REFUSED, FOLDER_FAILED } folder_result;

@@ -391,6 +391,18 @@ static void upload_publish(upload_job *j, arbor_mesh *mesh)
         folder_remove_upload(dir, j->name); /* what was written of it */
 }
 
+/* The answer to a change of the folder whose lock was not had: 503 while
+ * another holds it (worth a retry), 507 when it cannot be had at all. */
+static void folder_lock_refused(http_req *r, folder_lock_result why_not, const char *why)
+{
+    if (why_not == FOLDER_LOCK_BUSY) {
+        http_reply_error(r, 503, "busy", "%s", why);
+        http_reply_header(r, "Retry-After", "1");
+    } else {
+        http_reply_error(r, 507, "insufficient_storage", "%s", why);
+    }
+}
+
 static void upload_run(void *ctx, uint32_t task)
 {
     (void)task;
@@ -405,6 +417,7 @@ static void upload_run(void *ctx, uint32_t task)
     char path[sizeof u->dir + PART_NAME_MAX + 2], why[PATH_MAX + 128];
     bool ply, gz;
     int lock;
+    folder_lock_result locked;
     if (http_method_is(r, "PUT") ? !name_put_body(r, j->name) : !sniff_model(r, path_of_part(u, path, sizeof path),
                                                                            s->config.max_upload, &ply, &gz)) {
         /* answered */
@@ -414,8 +427,9 @@ static void upload_run(void *ctx, uint32_t task)
             http_reply_err(r, &err);
         else
             http_reply_error(r, 400, "bad_request", "%s", err.msg);
-    } else if (!folder_lock_take(s->config.upload_dir, &lock, why, sizeof why)) {
-        http_reply_error(r, 507, "insufficient_storage", "%s", why);
+    } else if ((locked = folder_lock_take(s->config.upload_dir, FOLDER_LOCK_WAIT_MS, &lock, why, sizeof why)) !=
+               FOLDER_LOCKED) {
+        folder_lock_refused(r, locked, why);
     } else {
         for (uint32_t i = 0; i < mesh.nwarnings; i++)
             strip_dir(mesh.warnings[i], u->dir);
@@ -542,10 +556,12 @@ static void delete_run(void *ctx, uint32_t task)
     char why[PATH_MAX + 128];
     arbor_err err;
     int lock = -1;
-    bool locked = dir != NULL && folder_lock_take(dir, &lock, why, sizeof why);
+    folder_lock_result taken = dir != NULL ? folder_lock_take(dir, FOLDER_LOCK_WAIT_MS, &lock, why, sizeof why)
+                                           : FOLDER_LOCK_FAILED;
+    bool locked = taken == FOLDER_LOCKED;
     bool exists = sync_exists(r->srv, j->name); /* under the lock: as other daemons left it */
-    if (dir != NULL && !locked && access(dir, W_OK) == 0) {
-        http_reply_error(r, 507, "insufficient_storage", "%s", why);
+    if (taken == FOLDER_LOCK_BUSY || (dir != NULL && !locked && access(dir, W_OK) == 0)) {
+        folder_lock_refused(r, taken, why);
     } else if (!arbor_store_remove_model(r->srv->store, j->name, &err) &&
                (err.status != ARBOR_ERR_NOT_FOUND || !exists)) {
         http_reply_err(r, &err);

@@ -496,6 +496,48 @@ def test_abuse_folder_mounted_again_under_another_device():
 
 
 @test
+def test_abuse_folder_lock_held_by_another():
+    """Another process holds the models folder's lock and does not let go (a stuck daemon, an operator's
+    flock): uploads and DELETEs wait a bounded time and answer 503 busy with Retry-After, the folder
+    and the store as they were, and a frame asked for meanwhile renders; once the lock is free, the
+    DELETE goes through."""
+    import fcntl
+    mnt = tempfile.mkdtemp(prefix="arbor-lock-")
+    d = Daemon(models_dir=mnt, args=["--threads", "2"], name="held-lock daemon")
+    try:
+        expect_json(d.req("PUT", "/api/models/first", body=b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"), 201)
+        before = sorted(os.listdir(mnt))
+        with open(os.path.join(mnt, ".arbord.lock"), "r+") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            answers = {}
+
+            def ask(key, method, path, **kw):
+                answers[key] = d.req(method, path, timeout=60, **kw)
+
+            # two DELETEs and an upload: every worker of --threads 2, and more, waits on the lock
+            asks = [threading.Thread(target=ask, args=("delete%d" % i, "DELETE", "/api/models/first")) for i in range(2)]
+            asks.append(threading.Thread(target=ask, args=("upload", "PUT", "/api/models/second"),
+                                         kwargs={"body": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"}))
+            for t in asks:
+                t.start()
+            frame = d.post("/api/render", {"model": "first", "width": 8, "height": 8}, timeout=60)
+            eq(frame.status, 200, "a frame while the folder's lock is held: %s" % frame.body[:200])
+            for t in asks:
+                t.join()
+            for key in sorted(answers):
+                expect_error(answers[key], 503, "busy")
+                eq(answers[key].header("Retry-After"), "1", "Retry-After of the refused %s" % key)
+            eq(sorted(os.listdir(mnt)), before, "files after the refused changes")
+            eq(d.model("first")["triangles"], 1, "first still loaded")
+            expect_error(d.req("GET", "/api/models/second"), 404, "not_found")
+        eq(expect_json(d.req("DELETE", "/api/models/first")), {"deleted": "first"}, "DELETE once the lock is free")
+        eq(sorted(os.listdir(mnt)), [".arbord.lock"], "files after the DELETE")
+    finally:
+        d.stop_clean()
+        shutil.rmtree(mnt)
+
+
+@test
 def test_abuse_folder_lock_unusable():
     """A writable models folder whose lock cannot be opened (.arbord.lock made a folder): DELETE of an
     uploaded model is 507 and the model stays loaded with its files, since they would load it again;
