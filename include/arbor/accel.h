@@ -97,6 +97,8 @@ typedef struct {
     double mean_tris_per_leaf;  /* over non-empty leaves */
     uint64_t refs;              /* triangle references in leaves */
     uint64_t bytes;             /* memory the tree holds: all its arrays (bvh: both layouts) */
+    uint64_t binary_bytes;      /* the binary tree's arrays as built, also once a bvh has freed them
+                                 * (drop_binary): the binary layout's bytes */
     double sah_cost;
     bool has_wide;              /* the bvh: rays traverse the wide tree below */
     arbor_layout_stats wide;

@@ -73,7 +73,7 @@ bool arbor_tree_layout_stats(const arbor_tree_stats *s, arbor_layout layout, arb
     if (layout != ARBOR_LAYOUT_BINARY)
         return false;
     *out = (arbor_layout_stats){s->nodes,  s->leaves, s->empty_leaves, s->max_depth, s->mean_leaf_depth,
-                                s->mean_tris_per_leaf, s->refs, s->bytes - (s->has_wide ? s->wide.bytes : 0),
+                                s->mean_tris_per_leaf, s->refs, s->binary_bytes,
                                 s->sah_cost};
     return true;
 }

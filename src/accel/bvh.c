@@ -66,6 +66,7 @@ static void *bvh_build(const arbor_mesh *m, const arbor_build_opts *o, accel_run
     stats->has_wide = t->nnodes > 0;
     if (stats->has_wide)
         bvh_wide_stats(t, &stats->wide);
+    stats->binary_bytes = bvh_tree_bytes(t) - bvh_wide_bytes(t);
     if (o->drop_binary && t->nnodes > 0) {
         free(t->nodes);
         free(t->tri_index);
@@ -190,9 +191,10 @@ static bool check_stats(const bvh_check *k, const arbor_tree_stats *s, arbor_err
         return arbor_fail(e, ARBOR_ERR_INVALID,
                           "bvh stats: max depth %u, mean leaf depth %g, tris per leaf %g; the walk finds %u, %g, %g",
                           s->max_depth, s->mean_leaf_depth, s->mean_tris_per_leaf, k->max_depth, mean_depth, mean_tris);
-    if (s->bytes != bytes)
-        return arbor_fail(e, ARBOR_ERR_INVALID, "bvh stats: %llu bytes, the arrays hold %llu",
-                          (unsigned long long)s->bytes, (unsigned long long)bytes);
+    if (s->bytes != bytes || s->binary_bytes != bytes - bvh_wide_bytes(t))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "bvh stats: %llu bytes (%llu binary), the arrays hold %llu (%llu)",
+                          (unsigned long long)s->bytes, (unsigned long long)s->binary_bytes,
+                          (unsigned long long)bytes, (unsigned long long)(bytes - bvh_wide_bytes(t)));
     if (!close_rel(s->sah_cost, k->sah_cost, 1e-6))
         return arbor_fail(e, ARBOR_ERR_INVALID, "bvh stats: sah_cost %.9g, the walk finds %.9g", s->sah_cost,
                           k->sah_cost);

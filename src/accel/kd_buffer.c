@@ -141,6 +141,7 @@ void kd_fill_stats(const kd_tree *tree, const kd_sums *s, arbor_tree_stats *stat
     stats->mean_tris_per_leaf = nonempty ? (double)s->refs / (double)nonempty : 0.0;
     stats->refs = s->refs;
     stats->bytes = kd_tree_bytes(tree);
+    stats->binary_bytes = stats->bytes;
     /* with no area at the root (all triangles on one line or point) every
      * cell counts as the root's, ratio 1, as the bvh does */
     stats->sah_cost = root_area > 0.0 ? (s->inner_area + s->leaf_area_tris) / root_area

@@ -309,7 +309,7 @@ static bool kd_check_stats(const kd_check *c, const arbor_tree_stats *s)
                                  : (double)(t->nnodes - c->leaves) + (double)c->refs;
     uint64_t bytes = kd_tree_bytes(t);
     if (s->nodes != t->nnodes || s->leaves != c->leaves || s->empty_leaves != c->empty_leaves ||
-        s->refs != c->refs || s->max_depth != c->max_depth || s->bytes != bytes)
+        s->refs != c->refs || s->max_depth != c->max_depth || s->bytes != bytes || s->binary_bytes != bytes)
         return arbor_fail(c->e, ARBOR_ERR_INVALID,
                           "kd stats: stored nodes %llu leaves %llu empty %llu refs %llu depth %u bytes %llu, "
                           "walk finds %zu %llu %llu %llu %u %llu",

@@ -501,8 +501,8 @@ int cmd_serve(int argc, char **argv)
             a.server.bind, arbor_server_port(server), a.server.threads, a.server.queue, a.model_dirs[0],
             a.server.web_dir);
     if (arbor_server_writes_forbidden(server))
-        fprintf(stderr, "arbord: warning: listening on %s without --token-file: uploads, deletes, builds and "
-                        "bench jobs are refused (403)\n", a.server.bind);
+        fprintf(stderr, "arbord: warning: listening on %s without --token-file: uploads, deletes, POSTs of trees "
+                        "and bench jobs are refused (403); frames and reads stay open\n", a.server.bind);
 
     for (int i = 0; i < a.nmodel_dirs; i++)
         load_dir(server, store, a.model_dirs[i], &prebuild, a.server.max_upload, &stop);
