@@ -135,8 +135,9 @@ void http_queue(http_req *r, void (*run)(void *ctx, uint32_t task), void (*relea
 
 /* ---- helpers (server.c) ---- */
 const char *http_arg(http_req *r, const char *key);
-/* Whether every query parameter is one of `known` ("a, b, c"); replies 400
- * naming the first that is not. */
+/* Whether every query parameter is one of `known` ("a, b, c"; "" for a
+ * route that takes none), each given once; replies 400 naming the first
+ * that is not. */
 bool http_args_known(http_req *r, const char *known);
 /* A flag parameter: absent is false, "1" and "true" true, "0" and "false"
  * false; anything else replies 400 and returns false with *ok false. */

@@ -386,7 +386,7 @@ void route_job(http_req *r, const char *id)
         http_method_not_allowed(r, "GET, HEAD, DELETE");
         return;
     }
-    if (del && !http_may_write(r))
+    if (!http_args_known(r, "") || (del && !http_may_write(r)))
         return;
     char *end;
     uint64_t want = strtoull(id, &end, 10);

@@ -630,6 +630,11 @@ static void below_model(http_req *r, const char *name, const char *rest)
 
 void route_models(http_req *r, const char *name, const char *rest)
 {
+    /* the boxes read their own parameters; an upload takes ?replace */
+    bool uploading = http_method_is(r, "PUT") || http_method_is(r, "POST");
+    bool allowed = uploading || http_method_is(r, "GET") || http_method_is(r, "HEAD") || http_method_is(r, "DELETE");
+    if (allowed && r->route != ROUTE_BOXES && !http_args_known(r, uploading && rest[0] == '\0' ? "replace" : ""))
+        return;
     if (rest[0] != '\0') {
         below_model(r, name, rest);
         return;
@@ -638,7 +643,7 @@ void route_models(http_req *r, const char *name, const char *rest)
         get_model(r, name);
     else if (http_method_is(r, "DELETE"))
         delete_model(r, name);
-    else if (http_method_is(r, "PUT") || http_method_is(r, "POST")) {
+    else if (uploading) {
         if (http_may_write(r))
             upload(r, name);
     } else

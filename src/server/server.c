@@ -255,7 +255,10 @@ bool http_args_known(http_req *r, const char *known)
 {
     args_check c = {.known = known};
     MHD_get_connection_values(r->conn, MHD_GET_ARGUMENT_KIND, arg_known, &c);
-    if (c.unknown != NULL)
+    if (c.unknown != NULL && known[0] == '\0')
+        http_reply_error(r, 400, "bad_request", "unknown query parameter '%s': %s %.*s takes none", c.unknown,
+                         r->method, (int)strcspn(r->url, "?"), r->url);
+    else if (c.unknown != NULL)
         http_reply_error(r, 400, "bad_request", "unknown query parameter '%s' (%s)", c.unknown, known);
     else if (c.twice != NULL)
         http_reply_error(r, 400, "bad_request", "%s is given twice", c.twice);
@@ -281,7 +284,8 @@ bool http_method_is(http_req *r, const char *m)
 
 void http_method_not_allowed(http_req *r, const char *allow)
 {
-    http_reply_error(r, 405, "method_not_allowed", "%s is not allowed on %s (allowed: %s)", r->method, r->url, allow);
+    http_reply_error(r, 405, "method_not_allowed", "%s is not allowed on %.*s (allowed: %s)", r->method,
+                     (int)strcspn(r->url, "?"), r->url, allow);
     http_reply_header(r, MHD_HTTP_HEADER_ALLOW, allow);
 }
 
@@ -522,12 +526,14 @@ static http_route classify(const char *path)
     return ROUTE_STATIC;
 }
 
-static void only(http_req *r, const char *method, void (*handler)(http_req *))
+/* A route of one method (GET also serving HEAD) whose query parameters are
+ * `known` (http_args_known), or NULL when the handler checks them itself. */
+static void only(http_req *r, const char *method, const char *known, void (*handler)(http_req *))
 {
-    if (http_method_is(r, method) || (strcmp(method, "GET") == 0 && http_method_is(r, "HEAD")))
-        handler(r);
-    else
+    if (!http_method_is(r, method) && !(strcmp(method, "GET") == 0 && http_method_is(r, "HEAD")))
         http_method_not_allowed(r, strcmp(method, "GET") == 0 ? "GET, HEAD" : method);
+    else if (known == NULL || http_args_known(r, known))
+        handler(r);
 }
 
 static void route_healthz(http_req *r)
@@ -555,16 +561,18 @@ static void list_models(http_req *r)
 static void dispatch(http_req *r, const char *path)
 {
     switch (r->route) {
-    case ROUTE_HEALTHZ: only(r, "GET", route_healthz); return;
-    case ROUTE_READYZ: only(r, "GET", route_readyz); return;
-    case ROUTE_METRICS: only(r, "GET", route_metrics); return;
-    case ROUTE_MODELS: only(r, "GET", list_models); return;
-    case ROUTE_STATS: only(r, "GET", route_stats); return;
-    case ROUTE_RAY: only(r, "POST", route_ray); return;
-    case ROUTE_BENCH: only(r, "POST", route_bench); return;
+    case ROUTE_HEALTHZ: only(r, "GET", "", route_healthz); return;
+    case ROUTE_READYZ: only(r, "GET", "", route_readyz); return;
+    case ROUTE_METRICS: only(r, "GET", "", route_metrics); return;
+    case ROUTE_MODELS: only(r, "GET", "", list_models); return;
+    case ROUTE_STATS: only(r, "GET", NULL, route_stats); return;
+    case ROUTE_RAY: only(r, "POST", "", route_ray); return;
+    case ROUTE_BENCH: only(r, "POST", "", route_bench); return;
     case ROUTE_RENDER:
-        if (http_method_is(r, "GET") || http_method_is(r, "HEAD") || http_method_is(r, "POST"))
+        if (http_method_is(r, "GET") || http_method_is(r, "HEAD")) /* its query is the request */
             route_render(r);
+        else if (http_method_is(r, "POST")) /* its body is */
+            only(r, "POST", "", route_render);
         else
             http_method_not_allowed(r, "GET, HEAD, POST");
         return;
