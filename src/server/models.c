@@ -206,6 +206,13 @@ bool models_post_data(http_req *r, const char *data, size_t size)
             return false;
         }
         bool put = http_method_is(r, "PUT");
+        const char *type = MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_TYPE);
+        if (put && type != NULL && strncasecmp(type, "multipart/form-data", 19) == 0) {
+            /* it would be saved as the model, boundaries and part headers in its text */
+            http_reply_error(r, 415, "unsupported_media_type",
+                             "PUT takes the model file itself: POST a multipart/form-data body");
+            return false;
+        }
         if (!put) {
             r->post = MHD_create_post_processor(r->conn, 64 * 1024, on_part, r->parts);
             if (r->post == NULL) {

@@ -4,7 +4,7 @@ import os
 import re
 import socket
 
-from harness import (add_test, check, eq, expect_error, expect_ok, limits_daemon, main_daemon, test)
+from harness import (add_test, check, eq, expect_error, expect_ok, limits_daemon, main_daemon, multipart, test)
 
 CAM = {"eye": [0, 1, 4], "target": [0, 1, 0], "up": [0, 1, 0], "fov": 45}
 NUM = re.compile(r"\d")
@@ -295,6 +295,18 @@ def _make_method(method, path, allow):
 for m, p, a in METHOD_CASES:
     add_test("test_error_405_%s_%s" % (m.lower(), p.strip("/").replace("/", "_")), _make_method(m, p, a),
              __file__, _line_of('("%s", "%s"' % (m, p)))
+
+
+@test
+def test_error_put_of_a_multipart_body():
+    """curl -X PUT -F file=@m.obj sends multipart/form-data: a 415 pointing to POST, not a model saved with
+    the boundaries and part headers in its text."""
+    d = limits_daemon()
+    body, ctype = multipart([("model", "mp.obj", "model/obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")])
+    expect_error(d.req("PUT", "/api/models/mp", body=body, headers={"Content-Type": ctype}), 415,
+                 "unsupported_media_type", "POST")
+    eq([f for f in os.listdir(d.models_dir) if f.startswith("mp.")], [], "files the refused PUT left")
+    expect_error(d.req("GET", "/api/models/mp"), 404, "not_found")
 
 
 @test
