@@ -95,6 +95,17 @@
 #define ARBOR_MAX_SPP 64
 #define ARBOR_MAX_BOUNCES 16
 #define ARBOR_MAX_AO_SAMPLES 256
+/* The ranges the command line and the daemon both accept for an orbit
+ * camera (degrees; distance in model diagonals), a heat frame's scale and a
+ * frame's seed. A pitch of 90 would leave the view's up undefined; seeds stop
+ * at 2^53 - 1, so that a larger one, which JSON's doubles would round to
+ * another, is refused rather than changed. */
+#define ARBOR_MAX_PITCH 89.9
+#define ARBOR_MIN_DISTANCE 1e-4
+#define ARBOR_MAX_DISTANCE 1e4
+#define ARBOR_MIN_HEAT_SCALE 1e-9
+#define ARBOR_MAX_HEAT_SCALE 1e12
+#define ARBOR_MAX_SEED 9007199254740991ULL
 
 typedef enum {
     ARBOR_MODE_SHADED,

@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 
 #include "arbor/sys.h"
 #include "cli.h"
@@ -56,7 +57,21 @@ bool cli_int(const char *cmd, const char *opt, const char *s, long lo, long hi, 
     return true;
 }
 
-bool cli_float(const char *cmd, const char *opt, const char *s, double lo, double hi, float *out)
+bool cli_ends_with(const char *path, const char *ext)
+{
+    size_t n = strlen(path), k = strlen(ext);
+    return n >= k && strcasecmp(path + n - k, ext) == 0;
+}
+
+bool cli_whole(const char *cmd, const char *opt, const char *s, double v)
+{
+    if (v == floor(v))
+        return true;
+    fprintf(stderr, "arbord %s: %s must be a whole number, not '%s'\n", cmd, opt, s);
+    return false;
+}
+
+bool cli_number(const char *cmd, const char *opt, const char *s, double lo, double hi, double *out)
 {
     char *end;
     errno = 0;
@@ -65,6 +80,6 @@ bool cli_float(const char *cmd, const char *opt, const char *s, double lo, doubl
         fprintf(stderr, "arbord %s: %s must be a number in %g..%g, not '%s'\n", cmd, opt, lo, hi, s);
         return false;
     }
-    *out = (float)v;
+    *out = v;
     return true;
 }

@@ -42,6 +42,10 @@ bool cli_first(const char *cmd, cli_seen *seen, const char *opt);
 bool cli_print_json(cJSON *o);
 /* Parse a whole number / a finite number in [lo, hi]; prints the error. */
 bool cli_int(const char *cmd, const char *opt, const char *s, long lo, long hi, int *out);
-bool cli_float(const char *cmd, const char *opt, const char *s, double lo, double hi, float *out);
+bool cli_number(const char *cmd, const char *opt, const char *s, double lo, double hi, double *out);
+/* Whether path ends in ext (".png"), in any case. */
+bool cli_ends_with(const char *path, const char *ext);
+/* Whether v, parsed from s, is a whole number; says so on stderr when not. */
+bool cli_whole(const char *cmd, const char *opt, const char *s, double v);
 
 #endif

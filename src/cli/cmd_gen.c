@@ -186,6 +186,10 @@ static bool check_one_args(const gen_args *a, arbor_gen_kind *kind)
         fprintf(stderr, "arbord gen: -o FILE.obj is required\n");
         return false;
     }
+    if (!cli_ends_with(a->out, ".obj")) { /* its material library goes beside it as FILE.mtl */
+        fprintf(stderr, "arbord gen: -o %s: the model is written as OBJ, so its name must end in .obj\n", a->out);
+        return false;
+    }
     return true;
 }
 

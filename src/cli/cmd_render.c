@@ -6,7 +6,6 @@
  */
 #include <stdio.h>
 #include <string.h>
-#include <strings.h>
 
 #include "arbor/accel.h"
 #include "arbor/load.h"
@@ -25,21 +24,24 @@ static void usage(FILE *out)
             "  --width W --height H    image size, 1..%d (default 1024 x 768)\n"
             "  --spp N                 samples per pixel, 1..%d (default 1)\n"
             "  --mode M                shaded, normals, depth, ao, heat (default shaded)\n"
-            "  --yaw D --pitch D       orbit angles in degrees around the model's centre\n"
-            "  --distance X            orbit distance in model diagonals (default: the protocol view's)\n"
+            "  --yaw D --pitch D       orbit angles in degrees around the model's centre (yaw -3600..3600,\n"
+            "                          pitch -%g..%g)\n"
+            "  --distance X            orbit distance in model diagonals, %g..%g (default: the protocol\n"
+            "                          view's)\n"
             "  --bounces N             mirror reflections, 0..%d (default 4)\n"
             "  --ao-samples N          rays per AO sample, 1..%d (default 8)\n"
-            "  --seed N                frame seed for the sample positions (default 1)\n"
+            "  --seed N                frame seed for the sample positions, 0..2^53-1 (default 1)\n"
             "  --threads N             render and build threads; 0 = one per core (default 0)\n"
-            "  --heat-scale S          heat mode: the cost at the top of the colour scale (default: the\n"
-            "                          frame's 99th percentile)\n"
+            "  --heat-scale S          heat mode: the cost at the top of the colour scale, %g..%g\n"
+            "                          (default: the frame's 99th percentile)\n"
             "  --counts                also report nodes visited and triangles tested per primary ray\n"
             "  --url URL               render on the daemon (or load balancer) at URL; --model names a\n"
             "                          model it serves\n"
             "  --split K               with --url: ask for K horizontal strips at once (default 1)\n"
             "  --connections N         with --url: keep-alive connections at once (default K)\n"
             "Without --yaw/--pitch/--distance the camera is PROTOCOL.md's view.\n",
-            ARBOR_MAX_IMAGE_SIZE, ARBOR_MAX_SPP, ARBOR_MAX_BOUNCES, ARBOR_MAX_AO_SAMPLES);
+            ARBOR_MAX_IMAGE_SIZE, ARBOR_MAX_SPP, ARBOR_MAX_PITCH, ARBOR_MAX_PITCH, ARBOR_MIN_DISTANCE,
+            ARBOR_MAX_DISTANCE, ARBOR_MAX_BOUNCES, ARBOR_MAX_AO_SAMPLES, ARBOR_MIN_HEAT_SCALE, ARBOR_MAX_HEAT_SCALE);
 }
 
 typedef struct {
@@ -47,9 +49,10 @@ typedef struct {
     arbor_accel_kind kind;
     arbor_builder builder;
     arbor_render_mode mode;
-    int width, height, spp, bounces, ao_samples, threads, seed, split, connections;
+    int width, height, spp, bounces, ao_samples, threads, split, connections;
+    uint64_t seed;
     bool orbit, counts, threads_given;
-    float yaw, pitch, distance, heat_scale;
+    double yaw, pitch, distance, heat_scale; /* doubles, as the request's JSON carries them */
 } render_args;
 
 static bool takes_value(const char *opt)
@@ -66,12 +69,6 @@ static bool takes_value(const char *opt)
 
 /* PNG is the one format written: a name promising another (x.jpg) would
  * get PNG bytes under the wrong extension. */
-static bool has_png_extension(const char *path)
-{
-    size_t n = strlen(path);
-    return n >= 4 && strcasecmp(path + n - 4, ".png") == 0;
-}
-
 /* The flags that belong to one side only: the local renderer's threads and
  * counts, the remote one's strips. Returns -1 to go on, else 2. */
 static int check_remote_args(const render_args *a)
@@ -85,7 +82,7 @@ static int check_remote_args(const render_args *a)
     }
     /* Heat colours scale to the frame's 99th percentile, which no strip
      * knows on its own: every strip must be given the same scale. */
-    if (a->split > 1 && a->mode == ARBOR_MODE_HEAT && a->heat_scale <= 0.0f) {
+    if (a->split > 1 && a->mode == ARBOR_MODE_HEAT && a->heat_scale <= 0.0) {
         fprintf(stderr, "arbord render: heat mode in %d strips needs --heat-scale S (the whole frame's scale: "
                         "render it once whole and read its X-Heat-Scale or 'heat scale')\n", a->split);
         return 2;
@@ -150,15 +147,17 @@ static int parse_args(int argc, char **argv, render_args *a)
         } else if (strcmp(opt, "--connections") == 0) {
             ok = cli_int(cmd, opt, v, 1, 256, &a->connections);
         } else if (strcmp(opt, "--heat-scale") == 0) {
-            ok = cli_float(cmd, opt, v, 1e-6, 1e9, &a->heat_scale);
+            ok = cli_number(cmd, opt, v, ARBOR_MIN_HEAT_SCALE, ARBOR_MAX_HEAT_SCALE, &a->heat_scale);
         } else if (strcmp(opt, "--seed") == 0) {
-            ok = cli_int(cmd, opt, v, 0, 2147483647, &a->seed);
+            double seed;
+            ok = cli_number(cmd, opt, v, 0, (double)ARBOR_MAX_SEED, &seed) && cli_whole(cmd, opt, v, seed);
+            a->seed = (uint64_t)seed;
         } else if (strcmp(opt, "--yaw") == 0) {
-            ok = a->orbit = cli_float(cmd, opt, v, -3600.0, 3600.0, &a->yaw);
+            ok = a->orbit = cli_number(cmd, opt, v, -3600.0, 3600.0, &a->yaw);
         } else if (strcmp(opt, "--pitch") == 0) {
-            ok = a->orbit = cli_float(cmd, opt, v, -89.0, 89.0, &a->pitch);
+            ok = a->orbit = cli_number(cmd, opt, v, -ARBOR_MAX_PITCH, ARBOR_MAX_PITCH, &a->pitch);
         } else { /* --distance, the last of takes_value's names */
-            ok = a->orbit = cli_float(cmd, opt, v, 0.01, 1000.0, &a->distance);
+            ok = a->orbit = cli_number(cmd, opt, v, ARBOR_MIN_DISTANCE, ARBOR_MAX_DISTANCE, &a->distance);
         }
         if (!ok)
             return 2;
@@ -168,7 +167,7 @@ static int parse_args(int argc, char **argv, render_args *a)
         usage(stderr);
         return 2;
     }
-    if (!has_png_extension(a->output)) {
+    if (!cli_ends_with(a->output, ".png")) {
         fprintf(stderr, "arbord render: -o %s: the image is written as PNG, so its name must end in .png\n",
                 a->output);
         return 2;
@@ -182,12 +181,13 @@ static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_acce
     arbor_render_params params;
     arbor_render_params_init(&params, mesh, a->width, a->height);
     if (a->orbit)
-        arbor_camera_orbit(&params.camera, mesh->bounds, a->yaw, a->pitch, a->distance, 45.0f, a->width, a->height);
+        arbor_camera_orbit(&params.camera, mesh->bounds, (float)a->yaw, (float)a->pitch, (float)a->distance, 45.0f,
+                           a->width, a->height);
     params.mode = a->mode;
     params.spp = a->spp;
     params.max_bounces = a->bounces;
     params.ao_samples = a->ao_samples;
-    params.seed = (uint64_t)a->seed;
+    params.seed = a->seed;
     params.count_primary = a->counts;
     params.heat_scale = a->heat_scale;
     arbor_frame *frame = arbor_render(pool, tree, &params, &err);
@@ -204,7 +204,7 @@ static int render_model(const render_args *a, const arbor_mesh *mesh, arbor_acce
             printf("per primary ray: %.1f nodes visited (inner and leaf, of the tree rays traverse), %.1f triangles tested\n",
                    r->mean_nodes, r->mean_tris);
         if (a->mode == ARBOR_MODE_HEAT)
-            printf("heat scale: %.1f (99th percentile; max %.1f, mean %.1f nodes + triangles per pixel)\n",
+            printf("heat scale: %.17g (99th percentile; max %.1f, mean %.1f nodes + triangles per pixel)\n",
                    r->heat_scale, r->heat_max, r->heat_mean);
         double t0 = arbor_now_ms();
         if (!arbor_png_write_file(a->output, r->rgb, r->width, r->height, &err)) {
@@ -229,8 +229,8 @@ static cJSON *request_of(const render_args *a)
               cJSON_AddStringToObject(o, "mode", arbor_render_mode_name(a->mode)) &&
               cJSON_AddNumberToObject(o, "width", a->width) && cJSON_AddNumberToObject(o, "height", a->height) &&
               cJSON_AddNumberToObject(o, "spp", a->spp) && cJSON_AddNumberToObject(o, "max_bounces", a->bounces) &&
-              cJSON_AddNumberToObject(o, "ao_samples", a->ao_samples) && cJSON_AddNumberToObject(o, "seed", a->seed);
-    if (ok && a->heat_scale > 0.0f)
+              cJSON_AddNumberToObject(o, "ao_samples", a->ao_samples) && cJSON_AddNumberToObject(o, "seed", (double)a->seed);
+    if (ok && a->heat_scale > 0.0)
         ok = cJSON_AddNumberToObject(o, "heat_scale", a->heat_scale) != NULL;
     if (ok && a->orbit)
         ok = (cam = cJSON_AddObjectToObject(o, "camera")) != NULL && cJSON_AddNumberToObject(cam, "yaw", a->yaw) &&
@@ -261,7 +261,9 @@ int cmd_render(int argc, char **argv)
 {
     render_args a = {.kind = ARBOR_ACCEL_BVH, .builder = ARBOR_BUILD_SAH, .mode = ARBOR_MODE_SHADED, .width = 1024,
                      .height = 768, .spp = 1, .bounces = 4, .ao_samples = 8, .seed = 1};
-    arbor_camera_orbit_protocol(&a.yaw, &a.pitch, &a.distance);
+    float yaw, pitch, distance;
+    arbor_camera_orbit_protocol(&yaw, &pitch, &distance);
+    a.yaw = yaw, a.pitch = pitch, a.distance = distance;
     int code = parse_args(argc, argv, &a);
     if (code >= 0)
         return code;

@@ -176,8 +176,8 @@ static int parse_args(int argc, char **argv, serve_args *a)
         else if (strcmp(o, "--max-connections") == 0) ok = cli_int(cmd, o, v, 1, 1000000, &c->connection_limit);
         else if (strcmp(o, "--max-per-ip") == 0) ok = cli_int(cmd, o, v, 1, 1000000, &c->per_ip_limit);
         else if (strcmp(o, "--frame-timeout") == 0) {
-            float s;
-            ok = cli_float(cmd, o, v, 0, 86400, &s);
+            double s;
+            ok = cli_number(cmd, o, v, 0, 86400, &s);
             c->frame_timeout_s = s;
         } else if (strcmp(o, "--log") == 0) {
             ok = strcmp(v, "text") == 0 || strcmp(v, "json") == 0;

@@ -224,5 +224,5 @@ int remote_render(const char *url, const cJSON *request, int width, int height, 
     free(f.conns);
     free(f.results);
     free(f.rgb);
-    return ok ? 0 : 1;
+    return ok ? 0 : err.status == ARBOR_ERR_INVALID ? 2 : 1; /* 2: a usage error (a bad --url), as the local render */
 }

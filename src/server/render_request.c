@@ -13,8 +13,6 @@
 #define DEFAULT_WIDTH 640
 #define DEFAULT_HEIGHT 480
 #define DEFAULT_FOV 45.0f
-#define MAX_PITCH 89.9
-#define MAX_SEED 9007199254740992.0 /* 2^53: every integer up to it is exact in JSON */
 
 typedef enum { F_STRING, F_INT, F_NUMBER, F_VEC3, F_CAMERA, F_REGION } field_type;
 
@@ -55,25 +53,43 @@ static const field *find_field(const field *list, size_t n, const char *name)
 
 /* ---- typed readers: each names the field in its error ---- */
 
+/* What a JSON value that is not a number is, for messages. */
+static const char *json_kind(const cJSON *v)
+{
+    return cJSON_IsString(v) ? "a string" : cJSON_IsBool(v) ? "a boolean" : cJSON_IsNull(v) ? "null"
+         : cJSON_IsArray(v) ? "an array" : "an object";
+}
+
 static bool read_number(const cJSON *v, const char *name, double lo, double hi, double *out, arbor_err *e)
 {
     if (!cJSON_IsNumber(v))
-        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a number", name);
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a number, not %s", name, json_kind(v));
     double d = v->valuedouble;
     if (!isfinite(d) || d < lo || d > hi)
-        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a finite number in %.16g..%.16g, not %.16g", name, lo,
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a finite number in %.15g..%.15g, not %.17g", name, lo,
                           hi, d);
+    *out = d;
+    return true;
+}
+
+/* A whole number in lo..hi (at most 2^53: exact in a double). */
+static bool read_whole(const cJSON *v, const char *name, double lo, double hi, double *out, arbor_err *e)
+{
+    if (!cJSON_IsNumber(v))
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a whole number, not %s", name, json_kind(v));
+    double d = v->valuedouble;
+    if (!isfinite(d) || d != floor(d) || d < lo || d > hi)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a whole number in %.0f..%.0f, not %.17g", name, lo, hi,
+                          d);
     *out = d;
     return true;
 }
 
 static bool read_int(const cJSON *v, const char *name, int lo, int hi, int *out, arbor_err *e)
 {
-    if (!cJSON_IsNumber(v))
-        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a whole number", name);
-    double d = v->valuedouble;
-    if (!isfinite(d) || d != floor(d) || d < lo || d > hi)
-        return arbor_fail(e, ARBOR_ERR_INVALID, "%s must be a whole number in %d..%d, not %g", name, lo, hi, d);
+    double d;
+    if (!read_whole(v, name, lo, hi, &d, e))
+        return false;
     *out = (int)d;
     return true;
 }
@@ -128,11 +144,11 @@ static bool read_camera(const cJSON *o, render_spec *s, arbor_err *e)
             s->yaw = (float)fmod(d, 360.0);
             orbit = true;
         } else if (strcmp(f->name, "pitch") == 0) {
-            ok = read_number(v, "camera.pitch", -MAX_PITCH, MAX_PITCH, &d, e);
+            ok = read_number(v, "camera.pitch", -ARBOR_MAX_PITCH, ARBOR_MAX_PITCH, &d, e);
             s->pitch = (float)d;
             orbit = true;
         } else if (strcmp(f->name, "distance") == 0) {
-            ok = read_number(v, "camera.distance", 1e-4, 1e4, &d, e);
+            ok = read_number(v, "camera.distance", ARBOR_MIN_DISTANCE, ARBOR_MAX_DISTANCE, &d, e);
             s->distance = (float)d;
             orbit = true;
         } else {
@@ -244,16 +260,14 @@ static bool read_named(const cJSON *v, render_spec *s, arbor_err *e)
     if (strcmp(n, "region") == 0) return read_region(v, s, e);
     double d;
     if (strcmp(n, "heat_scale") == 0) {
-        if (!read_number(v, n, 1e-9, 1e12, &d, e))
+        if (!read_number(v, n, ARBOR_MIN_HEAT_SCALE, ARBOR_MAX_HEAT_SCALE, &d, e))
             return false;
         s->heat_scale = d;
         return true;
     }
     /* seed */
-    if (!read_number(v, n, 0, MAX_SEED, &d, e))
+    if (!read_whole(v, n, 0, (double)ARBOR_MAX_SEED, &d, e))
         return false;
-    if (d != floor(d))
-        return arbor_fail(e, ARBOR_ERR_INVALID, "seed must be a whole number, not %g", d);
     s->seed = (uint64_t)d;
     return true;
 }

@@ -210,7 +210,7 @@ static void reply_frame(render_req *rr, const arbor_frame_result *res)
     add_number_header(r, "X-Rays", "%.0f", (double)res->rays);
     add_number_header(r, "X-Mrays-Per-S", "%.3f", res->mrays_per_s);
     if (rr->spec.mode == ARBOR_MODE_HEAT)
-        add_number_header(r, "X-Heat-Scale", "%.6g", res->heat_scale);
+        add_number_header(r, "X-Heat-Scale", "%.17g", res->heat_scale); /* exact: strips take it as it is */
     char timing[160];
     snprintf(timing, sizeof timing, "queue;dur=%.3f, build;dur=%.3f, render;dur=%.3f, encode;dur=%.3f", queue_ms,
              rr->tree_ms - rr->admitted_ms, res->render_ms, encode_ms);

@@ -87,6 +87,28 @@ one_value_options_refuse_a_second() {
         usage_fails serve --port 0 --port 1 --models "$root/models"
 }
 
+# render takes what the daemon's API takes (docs/API.md's ranges), a bad
+# --url and gen's -o of another extension are usage errors, and the heat
+# scale a frame prints gives that frame again when passed back.
+ranges_are_the_apis() {
+    usage_fails gen sphere -o "$tmp/never.txt" && grep -q "must end in .obj" "$tmp/usage.err" &&
+        usage_fails render --url 127.0.0.1:9 --model cornell -o "$tmp/never.png" &&
+        grep -q "http://" "$tmp/usage.err" &&
+        usage_fails render --model "$model" --seed 1.5 -o "$tmp/never.png" &&
+        usage_fails render --model "$model" --seed 9007199254740992 -o "$tmp/never.png" &&
+        usage_fails render --model "$model" --pitch 89.95 -o "$tmp/never.png" &&
+        "$arbord" render --model "$model" --width 8 --height 8 --pitch -89.9 --distance 0.0001 \
+            --seed 9007199254740991 -o "$tmp/edge.png" >/dev/null || fail "render at the API's edges failed"
+    "$arbord" render --model "$model" --width 48 --height 32 --spp 3 --mode heat -o "$tmp/heat.png" \
+        >"$tmp/heat.out" || fail "heat render failed"
+    local scale
+    scale=$(sed -n 's/^heat scale: \([^ ]*\) .*/\1/p' "$tmp/heat.out")
+    [ -n "$scale" ] || fail "no heat scale in: $(cat "$tmp/heat.out")"
+    "$arbord" render --model "$model" --width 48 --height 32 --spp 3 --mode heat --heat-scale "$scale" \
+        -o "$tmp/heat2.png" >/dev/null || fail "heat render with --heat-scale $scale failed"
+    cmp -s "$tmp/heat.png" "$tmp/heat2.png" || fail "--heat-scale $scale, as printed, gives another frame"
+}
+
 # A failed write leaves what was at the path: a device stays a device, an
 # existing image stays whole when the folder cannot take a new one.
 render_never_removes_what_it_did_not_make() {
@@ -289,6 +311,7 @@ check output_errors_fail output_errors_fail
 check render_refuses_other_extensions render_refuses_other_extensions
 check one_value_options_refuse_a_second one_value_options_refuse_a_second
 check render_never_removes_what_it_did_not_make render_never_removes_what_it_did_not_make
+check ranges_are_the_apis ranges_are_the_apis
 check threads_zero_is_documented threads_zero_is_documented
 check json_keys_stay json_keys_stay
 check embree_isa_is_checked_and_reported embree_isa_is_checked_and_reported

@@ -95,7 +95,7 @@ CASES = [
     ("max_bounces_17", "main", "POST", "/api/render", R(max_bounces=17), 400, "bad_request", "max_bounces"),
     ("ao_samples_0", "main", "POST", "/api/render", R(mode="ao", ao_samples=0), 400, "bad_request", "ao_samples"),
     ("ao_samples_257", "main", "POST", "/api/render", R(mode="ao", ao_samples=257), 400, "bad_request", "ao_samples"),
-    ("seed_negative", "main", "POST", "/api/render", R(seed=-1), 400, "bad_request", ["seed", "9007199254740992"]),
+    ("seed_negative", "main", "POST", "/api/render", R(seed=-1), 400, "bad_request", ["seed", "9007199254740991"]),
     ("background_over_1", "main", "POST", "/api/render", R(background=[2, 0, 0]), 400, "bad_request", "background"),
     ("heat_scale_0", "main", "POST", "/api/render", R(mode="heat", heat_scale=0), 400, "bad_request", "heat_scale"),
     ("format_gif", "main", "POST", "/api/render", R(format="gif"), 400, "bad_request", "format"),

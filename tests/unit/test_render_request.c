@@ -252,9 +252,10 @@ static void test_other_numbers_at_their_edges(void)
 
     s = accept("\"seed\":0", false);
     TEST_ASSERT_EQUAL_UINT64(0, s.seed);
-    s = accept("\"seed\":9007199254740992", false);
-    TEST_ASSERT_EQUAL_UINT64((uint64_t)1 << 53, s.seed);
-    refuse("\"seed\":9007199254740994", false, "seed");
+    s = accept("\"seed\":9007199254740991", false);
+    TEST_ASSERT_EQUAL_UINT64(((uint64_t)1 << 53) - 1, s.seed);
+    refuse("\"seed\":9007199254740992", false, "seed");
+    refuse("\"seed\":9007199254740993", false, "seed"); /* rounds to 2^53 in a double: refused, not changed */
     refuse("\"seed\":-1", false, "seed");
     refuse("\"seed\":1.5", false, "seed");
 
