@@ -35,8 +35,8 @@ static void usage(FILE *out)
 {
     fprintf(out,
             "usage: arbord bench --model FILE [--model FILE ...] [options]\n"
-            "  --accel LIST      tree kinds, comma-separated: bvh,kd (default both)\n"
-            "  --builder LIST    spatial,median,mean,sah (default all)\n"
+            "  --accel LIST      tree kinds, comma-separated: bvh,kd or all (default all)\n"
+            "  --builder LIST    spatial,median,mean,sah or all (default all)\n"
             "  --threads N       tracing, rendering and build threads; 0 = one per core (default 0)\n"
             "  --runs N          repetitions, 1..%d; every figure is their median (default 5)\n"
             "  --format F        md, csv or json (one object per line) (default md)\n"
@@ -235,7 +235,9 @@ static int run_parse(const bench_args *a)
 
 /* ---- arguments ---- */
 
-/* Marks each comma-separated name of list in `chosen` via parse; false with a message for an unknown one. */
+/* Marks each comma-separated name of list in `chosen` via parse, or every
+ * one for "all" (as arbord stats takes it); false with a message for an
+ * unknown one. */
 static bool parse_list(const char *opt, const char *list, bool *chosen, int count,
                        bool (*parse)(const char *name, int *index))
 {
@@ -245,6 +247,11 @@ static bool parse_list(const char *opt, const char *list, bool *chosen, int coun
     snprintf(buf, sizeof buf, "%s", list);
     for (char *save = NULL, *name = strtok_r(buf, ",", &save); name != NULL; name = strtok_r(NULL, ",", &save)) {
         int index;
+        if (strcmp(name, "all") == 0) {
+            for (int i = 0; i < count; i++)
+                chosen[i] = true;
+            continue;
+        }
         if (!parse(name, &index)) {
             fprintf(stderr, "arbord bench: %s: unknown name '%s'\n", opt, name);
             return false;

@@ -75,8 +75,10 @@ static bool parse_size(const char *opt, const char *s, uint64_t lo, uint64_t *ou
     else if (*end == 'M' || *end == 'm') mult = MIB, end++;
     else if (*end == 'G' || *end == 'g') mult = MIB * 1024, end++;
     if (errno != 0 || end == s || *end != '\0' || s[0] == '-' || v > UINT64_MAX / mult || v * mult < lo) {
-        fprintf(stderr, "arbord serve: %s must be a size of at least %llu bytes (K, M, G allowed), not '%s'\n", opt,
-                (unsigned long long)lo, s);
+        char least[64] = "a positive size";
+        if (lo > 1)
+            snprintf(least, sizeof least, "a size of at least %llu bytes", (unsigned long long)lo);
+        fprintf(stderr, "arbord serve: %s must be %s (K, M, G allowed), not '%s'\n", opt, least, s);
         return false;
     }
     *out = v * mult;
@@ -467,6 +469,12 @@ int cmd_serve(int argc, char **argv)
         }
         closedir(d);
     }
+    DIR *web = opendir(a.server.web_dir); /* the viewer: without it / would be a 404 */
+    if (web == NULL) {
+        fprintf(stderr, "arbord serve: cannot read --web %s: %s\n", a.server.web_dir, strerror(errno));
+        return 2;
+    }
+    closedir(web);
     a.server.upload_dir = a.model_dirs[0];
     char *token = NULL;
     if (a.token_file != NULL && !read_token(a.token_file, &token))
@@ -497,9 +505,11 @@ int cmd_serve(int argc, char **argv)
         free(token);
         return 2;
     }
-    fprintf(stderr, "arbord: listening on http://%s:%d/ (%d threads, queue %d, models %s, web %s)\n",
-            a.server.bind, arbor_server_port(server), a.server.threads, a.server.queue, a.model_dirs[0],
-            a.server.web_dir);
+    fprintf(stderr, "arbord: listening on http://%s:%d/ (%d threads, queue %d, models %s", a.server.bind,
+            arbor_server_port(server), a.server.threads, a.server.queue, a.model_dirs[0]);
+    for (int i = 1; i < a.nmodel_dirs; i++)
+        fprintf(stderr, ", %s", a.model_dirs[i]);
+    fprintf(stderr, ", web %s)\n", a.server.web_dir);
     if (arbor_server_writes_forbidden(server))
         fprintf(stderr, "arbord: warning: listening on %s without --token-file: uploads, deletes, POSTs of trees "
                         "and bench jobs are refused (403); frames and reads stay open\n", a.server.bind);

@@ -148,8 +148,9 @@ static void expose_histogram(FILE *f, const char *name, const char *labels, cons
     }
     cumulative += h->counts[METRICS_BUCKETS];
     fprintf(f, "%s_bucket{%s%sle=\"+Inf\"} %llu\n", name, labels, sep, (unsigned long long)cumulative);
-    fprintf(f, "%s_sum{%s} %.9g\n", name, labels, h->sum);
-    fprintf(f, "%s_count{%s} %llu\n", name, labels, (unsigned long long)h->n);
+    const char *open = labels[0] ? "{" : "", *close = labels[0] ? "}" : ""; /* no empty braces */
+    fprintf(f, "%s_sum%s%s%s %.9g\n", name, open, labels, close, h->sum);
+    fprintf(f, "%s_count%s%s%s %llu\n", name, open, labels, close, (unsigned long long)h->n);
 }
 
 static void header(FILE *f, const char *name, const char *type, const char *help)

@@ -109,6 +109,21 @@ ranges_are_the_apis() {
     cmp -s "$tmp/heat.png" "$tmp/heat2.png" || fail "--heat-scale $scale, as printed, gives another frame"
 }
 
+# A --web folder that cannot be read would serve the viewer's page as a 404.
+serve_refuses_a_web_folder_it_cannot_read() {
+    usage_fails serve --port 0 --web "$tmp/never.web" && grep -q "cannot read --web" "$tmp/usage.err"
+}
+
+# "all" names every tree kind and builder in bench as in stats.
+all_is_every_name() {
+    local rows
+    rows=$("$arbord" bench --model "$model" --accel all --builder all --runs 1 --format json 2>/dev/null |
+        grep -c '"builder"') || fail "bench --accel all --builder all failed"
+    [ "$rows" -eq 8 ] || fail "bench --accel all --builder all: $rows rows, not 8"
+    rows=$("$arbord" stats --model "$model" --accel all --builder all --json 2>/dev/null | grep -c '"layout":"binary"')
+    [ "$rows" -eq 8 ] || fail "stats --accel all --builder all: $rows binary rows, not 8"
+}
+
 # A failed write leaves what was at the path: a device stays a device, an
 # existing image stays whole when the folder cannot take a new one.
 render_never_removes_what_it_did_not_make() {
@@ -312,6 +327,8 @@ check render_refuses_other_extensions render_refuses_other_extensions
 check one_value_options_refuse_a_second one_value_options_refuse_a_second
 check render_never_removes_what_it_did_not_make render_never_removes_what_it_did_not_make
 check ranges_are_the_apis ranges_are_the_apis
+check all_is_every_name all_is_every_name
+check serve_refuses_a_web_folder_it_cannot_read serve_refuses_a_web_folder_it_cannot_read
 check threads_zero_is_documented threads_zero_is_documented
 check json_keys_stay json_keys_stay
 check embree_isa_is_checked_and_reported embree_isa_is_checked_and_reported

@@ -85,6 +85,8 @@ def test_metrics_parse_and_families():
     ct = r.header("Content-Type", "")
     check(ct.startswith("text/plain") and "version=0.0.4" in ct,
           "GET /metrics Content-Type %r, expected text/plain; version=0.0.4" % ct)
+    empty = [ln for ln in r.body.decode().splitlines() if "{}" in ln]
+    check(not empty, "GET /metrics: a sample with an empty label set's braces: %s" % empty[:3])
     samples, families = d.metrics()
     names = set(samples) | set(families)
     want_counters = ["arbor_http_requests_total", "arbor_rays_total", "arbor_frames_rejected_total",
