@@ -60,9 +60,8 @@ export function renderStats(el, app) {
     html += row('Refs / triangles', (c) => (c.st && c.st.triangles
         ? `${fmt(c.st.refs / c.st.triangles, 3)}${cols.length === 1 ? ` <span class="muted small">(${fmt(c.st.refs)} / ${fmt(c.st.triangles)})</span>` : ''}`
         : stat('refs')(c)), 'duplication');
-    html += row('Bytes', (c) => (!c.st ? stat('bytes')(c)
-        : c.st.wide && c.st.bytes === 0 ? (cols.length === 1 ? '<span class="muted">freed once collapsed</span>'
-            : '<span class="muted" title="freed once collapsed into the wide tree">freed</span>') : fmtBytes(c.st.bytes)), 'bytes');
+    // a bvh's binary tree as built (API.md), though the daemon frees it once collapsed
+    html += row('Bytes', (c) => (c.st ? fmtBytes(c.st.bytes) : stat('bytes')(c)), 'bytes');
     html += row('SAH cost', stat('sah_cost'), 'sah_cost');
     if (cols.some((c) => c.st && c.st.wide)) {
         // The bvh's rays traverse its binary tree collapsed into wide nodes; a k-d tree's, the tree above.
