@@ -89,6 +89,12 @@ void arbor_store_destroy(arbor_store *s);
  * '.': a name is a file name in the models folder, where a leading dot
  * would hide it from the folder's scan (and "." and ".." are not files). */
 bool arbor_model_name_valid(const char *name);
+/* The name of the model in a file named `file`: the name less its extension
+ * (.obj, .ply, .obj.gz, .ply.gz, in that case), each character a model
+ * name may not hold made '_' ("rose+vase.obj" is rose_vase). False when
+ * file is no model file. The name may still be no valid one (a leading '.',
+ * too long: then it is ""): check it with arbor_model_name_valid. */
+bool arbor_model_name_of_file(const char *file, char *name, size_t cap);
 
 /* How a model is added. */
 enum {

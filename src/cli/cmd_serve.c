@@ -263,29 +263,6 @@ static bool stop_requested(stop_flag *f)
 
 /* ---- loading ---- */
 
-/* The model name of a file: its name less the extension, with every
- * character a model name may not hold made '_' ("rose+vase.obj" is
- * rose_vase). False for files that are not models. */
-static bool model_file(const char *name, char *base, size_t cap)
-{
-    static const char *const exts[] = {".obj.gz", ".ply.gz", ".obj", ".ply"};
-    size_t n = strlen(name);
-    for (size_t i = 0; i < sizeof exts / sizeof exts[0]; i++) {
-        size_t k = strlen(exts[i]);
-        if (n > k && strcmp(name + n - k, exts[i]) == 0 && n - k < cap) {
-            for (size_t j = 0; j < n - k; j++) {
-                char c = name[j];
-                bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' ||
-                          c == '_' || c == '-';
-                base[j] = ok ? c : '_';
-            }
-            base[n - k] = '\0';
-            return true;
-        }
-    }
-    return false;
-}
-
 static int compare_names(const void *a, const void *b)
 {
     return strcmp(*(char *const *)a, *(char *const *)b);
@@ -337,7 +314,7 @@ static void load_one(arbor_server *server, arbor_store *store, const char *dir, 
                      const prebuild_set *p, uint64_t max_upload)
 {
     char name[ARBOR_MODEL_NAME_MAX + 1], path[PATH_MAX];
-    if (!model_file(file, name, sizeof name) || !arbor_model_name_valid(name)) {
+    if (!arbor_model_name_of_file(file, name, sizeof name) || !arbor_model_name_valid(name)) {
         fprintf(stderr, "arbord: skipping %s/%s: its name makes no model name (" ARBOR_MODEL_NAME_RULE ")\n", dir,
                 file);
         return;
@@ -390,7 +367,7 @@ static void load_dir(arbor_server *server, arbor_store *store, const char *dir, 
     struct dirent *ent;
     char base[ARBOR_MODEL_NAME_MAX + 1];
     while ((ent = readdir(d)) != NULL && n < MAX_MODEL_FILES)
-        if (ent->d_name[0] != '.' && model_file(ent->d_name, base, sizeof base) &&
+        if (ent->d_name[0] != '.' && arbor_model_name_of_file(ent->d_name, base, sizeof base) &&
             (files[n] = strdup(ent->d_name)) != NULL)
             n++;
     closedir(d);

@@ -23,7 +23,9 @@
  * after SYNC_RETRY_MS, since its cause may have passed meanwhile.
  *
  * The checks are stat(2) calls on the polling thread (metadata only: no
- * file is read there); reading and parsing happen on the pool.
+ * file is read there; a name with '_', which may stand for a file's odd
+ * characters, may also read the folder's entries); reading and parsing
+ * happen on the pool.
  */
 #include <dirent.h>
 #include <limits.h>
@@ -72,15 +74,38 @@ struct sync_bad {
 typedef enum { SYNC_CURRENT, SYNC_LOAD, SYNC_GONE, SYNC_BAD } sync_state;
 
 
-/* The file of model `name` in the shared folder and its stamp, if any. */
+/* Whether a folder entry is a model file, and its model's name. */
+static bool entry_name(const char *file, char *name, size_t cap)
+{
+    return file[0] != '.' && arbor_model_name_of_file(file, name, cap) && arbor_model_name_valid(name);
+}
+
+/* The file of model `name` in the shared folder and its stamp, if any:
+ * NAME.EXT, or else the first by name of the files whose names make that
+ * model name, as the daemon named them when it started ("rose+vase.obj" for
+ * rose_vase). Such a name has a '_' for each character it changed, so other
+ * names take no scan of the folder. */
 static bool folder_file(const arbor_server *s, const char *name, char *path, size_t cap, uint64_t *stamp)
 {
-    for (size_t i = 0; s->config.upload_dir != NULL && i < FOLDER_NEXTS; i++) {
-        snprintf(path, cap, "%s/%s%s", s->config.upload_dir, name, folder_model_exts[i]);
+    const char *dir = s->config.upload_dir;
+    for (size_t i = 0; dir != NULL && i < FOLDER_NEXTS; i++) {
+        snprintf(path, cap, "%s/%s%s", dir, name, folder_model_exts[i]);
         if ((*stamp = arbor_file_stamp(path)) != 0)
             return true;
     }
-    return false;
+    DIR *d = dir != NULL && strchr(name, '_') != NULL ? opendir(dir) : NULL;
+    struct dirent *ent;
+    char first[NAME_MAX + 1] = "", of[ARBOR_MODEL_NAME_MAX + 1];
+    while (d != NULL && (ent = readdir(d)) != NULL)
+        if (entry_name(ent->d_name, of, sizeof of) && strcmp(of, name) == 0 &&
+            (first[0] == '\0' || strcmp(ent->d_name, first) < 0))
+            snprintf(first, sizeof first, "%s", ent->d_name);
+    if (d != NULL)
+        closedir(d);
+    if (first[0] == '\0')
+        return false;
+    snprintf(path, cap, "%s/%s", dir, first);
+    return (*stamp = arbor_file_stamp(path)) != 0;
 }
 
 /* What the folder says of `name`, whose model in the store is m (NULL:
@@ -347,21 +372,6 @@ arbor_model *sync_model(http_req *r, const char *name)
     else if (st != SYNC_LOAD)
         http_reply_error(r, 404, "not_found", "no model named '%s'", name);
     return NULL;
-}
-
-/* Whether a folder entry is a model file, and its model's name. */
-static bool entry_name(const char *file, char *name, size_t cap)
-{
-    size_t n = strlen(file);
-    for (size_t i = FOLDER_NEXTS; i-- > 0;) {
-        size_t k = strlen(folder_model_exts[i]);
-        if (file[0] != '.' && n > k && n - k < cap && strcmp(file + n - k, folder_model_exts[i]) == 0) {
-            memcpy(name, file, n - k);
-            name[n - k] = '\0';
-            return arbor_model_name_valid(name);
-        }
-    }
-    return false;
 }
 
 bool sync_models(http_req *r)

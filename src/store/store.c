@@ -118,19 +118,39 @@ uint64_t arbor_mesh_bytes(const arbor_mesh *m)
     return b;
 }
 
+static bool name_char(char c)
+{
+    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' || c == '_' ||
+           c == '-';
+}
+
 bool arbor_model_name_valid(const char *name)
 {
     size_t n = strlen(name);
     if (n < 1 || n > ARBOR_MODEL_NAME_MAX || name[0] == '.')
         return false;
-    for (size_t i = 0; i < n; i++) {
-        char c = name[i];
-        bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' ||
-                  c == '_' || c == '-';
-        if (!ok)
+    for (size_t i = 0; i < n; i++)
+        if (!name_char(name[i]))
             return false;
-    }
     return true;
+}
+
+bool arbor_model_name_of_file(const char *file, char *name, size_t cap)
+{
+    /* the compressed first: "a.obj.gz" is a, not "a.obj" */
+    static const char *const exts[] = {".obj.gz", ".ply.gz", ".obj", ".ply"};
+    size_t n = strlen(file);
+    for (size_t i = 0; i < sizeof exts / sizeof exts[0]; i++) {
+        size_t k = strlen(exts[i]);
+        if (n <= k || strcmp(file + n - k, exts[i]) != 0)
+            continue;
+        size_t len = n - k < cap ? n - k : 0;
+        for (size_t j = 0; j < len; j++)
+            name[j] = name_char(file[j]) ? file[j] : '_';
+        name[len] = '\0';
+        return true;
+    }
+    return false;
 }
 
 arbor_store *arbor_store_create(const arbor_store_config *c, arbor_err *e)

@@ -382,6 +382,34 @@ def test_delete_keeps_the_operators_files():
         d.cleanup()
 
 
+@test
+def test_files_whose_names_are_changed_are_models_at_every_request():
+    """A file whose name holds characters a model name may not ("x+y.obj") is model x_y at start, and so
+    at every request after: DELETE keeps its file and the next request loads it again; one copied in while
+    the daemon runs is listed and loaded under its changed name; removed, it is a 404. A file with the
+    name itself (x_y.obj) comes first."""
+    d = Daemon([("x+y.obj", our("cornell.obj"))], ["--threads", "1"], copy=True, name="odd-names daemon")
+    try:
+        eq(d.model("x_y")["triangles"], 36, "x+y.obj at start")
+        eq(expect_json(d.req("DELETE", "/api/models/x_y")), {"deleted": "x_y"}, "DELETE x_y")
+        check(os.path.exists(os.path.join(d.models_dir, "x+y.obj")), "DELETE removed the operator's x+y.obj")
+        eq(d.model("x_y")["triangles"], 36, "x_y loaded again from x+y.obj")
+        late = os.path.join(d.models_dir, "late one.obj")
+        with open(late, "wb") as f:
+            f.write(TETRA_OBJ)
+        names = [m["name"] for m in expect_json(d.get("/api/models"))["models"]]
+        check("late_one" in names, "'late one.obj' copied in is not listed as late_one: %s" % names)
+        eq(d.model("late_one")["triangles"], 4, "late_one")
+        os.unlink(late)
+        expect_error(d.get("/api/models/late_one"), 404, "not_found")
+        with open(os.path.join(d.models_dir, "x_y.obj"), "wb") as f:
+            f.write(TETRA_OBJ)
+        eq(d.model("x_y")["triangles"], 4, "x_y.obj itself comes before x+y.obj")
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
 def _folder(d):
     return sorted(os.listdir(d.models_dir))
 
