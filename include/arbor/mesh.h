@@ -61,6 +61,11 @@ typedef struct {
     char **warnings;       /* nwarnings owned strings */
     uint32_t nwarnings;
     uint32_t warnings_dropped; /* past ARBOR_MESH_WARNINGS_MAX, until arbor_mesh_finish */
+    /* The material libraries the model names by a plain file name (no '/')
+     * that do not exist in its folder: for a caller that can supply them (an
+     * upload whose .mtl is in the models folder already). */
+    char **missing_libraries;  /* nmissing_libraries owned strings */
+    uint32_t nmissing_libraries;
     /* capacities of the growable arrays above (loader bookkeeping) */
     uint32_t cap_verts, cap_tris, cap_mats, cap_warnings;
 } arbor_mesh;
@@ -76,6 +81,9 @@ bool arbor_mesh_add_normal(arbor_mesh *m, arbor_vec3 n, arbor_err *e);
 /* Gives the last triangle added the normals a, b, c of its corners (indices
  * into normals, or ARBOR_NO_NORMAL). */
 bool arbor_mesh_set_last_tri_normals(arbor_mesh *m, uint32_t a, uint32_t b, uint32_t c, arbor_err *e);
+/* Records the library named by the len bytes at name as missing
+ * (missing_libraries); false (e filled) when memory runs out. */
+bool arbor_mesh_add_missing_library(arbor_mesh *m, const char *name, size_t len, arbor_err *e);
 /* Appends a material with the default values and the given name; *index gets its index. */
 bool arbor_mesh_add_material(arbor_mesh *m, const char *name, uint32_t *index, arbor_err *e);
 /* Index of the material called name, or -1. */

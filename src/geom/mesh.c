@@ -28,6 +28,9 @@ void arbor_mesh_free(arbor_mesh *m)
     for (uint32_t i = 0; i < m->nwarnings; i++)
         free(m->warnings[i]);
     free(m->warnings);
+    for (uint32_t i = 0; i < m->nmissing_libraries; i++)
+        free(m->missing_libraries[i]);
+    free(m->missing_libraries);
     arbor_mesh_init(m);
 }
 
@@ -142,6 +145,19 @@ int arbor_mesh_find_material(const arbor_mesh *m, const char *name)
         if (strcmp(m->mats[i].name, name) == 0)
             return (int)i;
     return -1;
+}
+
+bool arbor_mesh_add_missing_library(arbor_mesh *m, const char *name, size_t len, arbor_err *e)
+{
+    char **grown = realloc(m->missing_libraries, (m->nmissing_libraries + 1) * sizeof *grown);
+    char *s = grown != NULL ? strndup(name, len) : NULL;
+    if (grown != NULL)
+        m->missing_libraries = grown;
+    if (s == NULL)
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory noting material library '%.*s'", (int)(len < 64 ? len : 64),
+                          name);
+    m->missing_libraries[m->nmissing_libraries++] = s;
+    return true;
 }
 
 /* Keeps one warning (the caller has checked the cap). */

@@ -253,7 +253,11 @@ static bool load_library(obj_reader *r, const char *w, size_t n, arbor_err *e)
     arbor_err err;
     bool ok;
     if (real == NULL) {
-        ok = arbor_fail_errno(&err, path, "cannot open", errno);
+        int why = errno;
+        if (why == ENOENT && strchr(path + strlen(r->dir) + 1, '/') == NULL &&
+            !arbor_mesh_add_missing_library(r->m, w, n, e))
+            return false;
+        ok = arbor_fail_errno(&err, path, "cannot open", why);
     } else if (!real_path_inside(real, dir)) {
         arbor_mesh_warn(r->m, "%s:%u: material library '%.*s' is outside the model's folder; not loaded", r->c.name,
                         r->c.line, text_shown(n), w);

@@ -142,6 +142,11 @@ static bool publish(const char *dir, const char *name, const char *src, const ch
     return ok;
 }
 
+bool folder_copy_file(const char *dir, const char *name, const char *src, char *err, size_t errcap)
+{
+    return publish(dir, name, src, NULL, err, errcap);
+}
+
 /* ---- records ---- */
 
 static void record_path(const char *dir, const char *name, char *path, size_t cap)

@@ -69,6 +69,10 @@ folder_result folder_save_upload(const char *dir, const char *name, const char *
                                  folder_admit_fn admit, void *admit_ctx, char *file, size_t cap, char *err,
                                  size_t errcap);
 
+/* Copies the file at src into dir as name, by a temporary file and a
+ * rename; false (err set) when it cannot. */
+bool folder_copy_file(const char *dir, const char *name, const char *src, char *err, size_t errcap);
+
 /* Removes, with the lock held, the files an upload of `name` wrote that no
  * other record names, and its record. A model the operator put in the
  * folder has no record and keeps its files. */

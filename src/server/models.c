@@ -410,6 +410,40 @@ static void folder_lock_refused(http_req *r, folder_lock_result why_not, const c
     }
 }
 
+/* Copies into the upload's temporary folder the material libraries its
+ * model names and did not send that the models folder has, so that it loads
+ * with the materials every daemon finds beside it in the folder, and its
+ * save records them as used (folder.h: no DELETE of another model then
+ * removes them). Returns how many it copied. */
+static uint32_t stage_folder_libraries(upload_parts *u, const char *dir, const arbor_mesh *m)
+{
+    uint32_t copied = 0;
+    char src[PATH_MAX], why[PATH_MAX + 128];
+    struct stat st;
+    for (uint32_t i = 0; dir != NULL && i < m->nmissing_libraries; i++) {
+        const char *lib = m->missing_libraries[i];
+        snprintf(src, sizeof src, "%s/%s", dir, lib);
+        if (lib[0] != '.' && folder_is_material_file(lib) && u->nfiles < UPLOAD_FILES_MAX && stat(src, &st) == 0 &&
+            S_ISREG(st.st_mode) && folder_copy_file(u->dir, lib, src, why, sizeof why)) {
+            u->nfiles++;
+            copied++;
+        }
+    }
+    return copied;
+}
+
+/* Loads the upload's model from its temporary folder, with the libraries
+ * stage_folder_libraries adds when it adds any. */
+static bool load_staged(upload_parts *u, const char *path, const arbor_server *s, arbor_mesh *mesh, arbor_err *err)
+{
+    if (!arbor_load_model_capped(path, s->config.max_upload, mesh, err))
+        return false;
+    if (stage_folder_libraries(u, s->config.upload_dir, mesh) == 0)
+        return true;
+    arbor_mesh_free(mesh);
+    return arbor_load_model_capped(path, s->config.max_upload, mesh, err);
+}
+
 static void upload_run(void *ctx, uint32_t task)
 {
     (void)task;
@@ -428,7 +462,7 @@ static void upload_run(void *ctx, uint32_t task)
     if (http_method_is(r, "PUT") ? !name_put_body(r, j->name) : !sniff_model(r, path_of_part(u, path, sizeof path),
                                                                            s->config.max_upload, &ply, &gz)) {
         /* answered */
-    } else if (!arbor_load_model_capped(path_of_part(u, path, sizeof path), s->config.max_upload, &mesh, &err)) {
+    } else if (!load_staged(u, path_of_part(u, path, sizeof path), s, &mesh, &err)) {
         strip_dir(err.msg, u->dir);
         if (err.status == ARBOR_ERR_NOMEM)
             http_reply_err(r, &err);

@@ -115,6 +115,8 @@ uint64_t arbor_mesh_bytes(const arbor_mesh *m)
                  (m->tri_normals != NULL ? (uint64_t)m->ntris * 3 * sizeof(uint32_t) : 0);
     for (uint32_t i = 0; i < m->nwarnings; i++)
         b += strlen(m->warnings[i]) + 1;
+    for (uint32_t i = 0; i < m->nmissing_libraries; i++)
+        b += strlen(m->missing_libraries[i]) + 1;
     return b;
 }
 

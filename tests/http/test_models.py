@@ -502,6 +502,32 @@ def test_shared_mtl_stays_while_an_upload_uses_it():
 
 
 @test
+def test_upload_uses_an_mtl_the_folder_has():
+    """An upload that does not send the .mtl its mtllib names, which the models folder has (another
+    upload's): the model loads with those materials, as every daemon loading it from the folder will,
+    and its record names the file, so that deleting the upload that wrote it keeps it."""
+    d = upload_daemon()
+    obj = b"mtllib folder-lib.mtl\nusemtl plum\n" + TETRA_OBJ
+    body, ctype = multipart([("model", "lib-owner.obj", "model/obj", obj),
+                             ("mtl", "folder-lib.mtl", "text/plain", b"newmtl plum\nKd 0.5 0 0.5\n")])
+    expect_json(d.req("POST", "/api/models/lib-owner", body=body, headers={"Content-Type": ctype}), 201)
+    for method, name in (("POST", "lib-user"), ("PUT", "lib-putter")):
+        if method == "POST":
+            body, ctype = multipart([("model", name + ".obj", "model/obj", obj)])
+            j = expect_json(d.req("POST", "/api/models/" + name, body=body, headers={"Content-Type": ctype}), 201)
+        else:
+            j = expect_json(d.req("PUT", "/api/models/" + name, body=obj), 201)
+        check("plum" in j["materials"] and not j["warnings"], "%s %s: %r" % (method, name, j))
+        with open(os.path.join(d.models_dir, "." + name + ".upload")) as f:
+            check("use folder-lib.mtl" in f.read().splitlines(), "%s's record does not name folder-lib.mtl" % name)
+    expect_json(d.req("DELETE", "/api/models/lib-owner"))
+    check(os.path.exists(os.path.join(d.models_dir, "folder-lib.mtl")),
+          "deleting lib-owner removed folder-lib.mtl, which lib-user and lib-putter use")
+    for name in ("lib-user", "lib-putter"):
+        expect_json(d.req("DELETE", "/api/models/" + name))
+
+
+@test
 def test_delete_keeps_a_file_the_operator_put_in_an_uploads_place():
     """The operator removes an uploaded model's file and puts their own of that name there: the upload's
     record is stale, and DELETE keeps the operator's file."""

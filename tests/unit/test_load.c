@@ -405,13 +405,17 @@ static void test_several_libraries_on_one_mtllib_line(void)
 static void test_missing_mtl_is_a_warning(void)
 {
     char obj[256];
-    snprintf(obj, sizeof obj, "mtllib nothere.mtl\n%susemtl red\nf 1 2 3\n", cube_faces);
+    snprintf(obj, sizeof obj, "mtllib nothere.mtl sub/notthere.mtl\n%susemtl red\nf 1 2 3\n", cube_faces);
     arbor_mesh m;
     arbor_err e;
     TEST_ASSERT_TRUE_MESSAGE(arbor_load_model(write_text("lonely.obj", obj), &m, &e), e.msg);
     TEST_ASSERT_EQUAL_UINT32(1, m.ntris);
     TEST_ASSERT_TRUE(has_warning(&m, "lonely.obj:1: material library not loaded"));
     TEST_ASSERT_TRUE(has_warning(&m, "nothere.mtl"));
+    TEST_ASSERT_TRUE(has_warning(&m, "sub/notthere.mtl"));
+    /* missing, for a caller that may supply it: the plain name only */
+    TEST_ASSERT_EQUAL_UINT32(1, m.nmissing_libraries);
+    TEST_ASSERT_EQUAL_STRING("nothere.mtl", m.missing_libraries[0]);
     TEST_ASSERT_EQUAL_FLOAT(0.7f, material(&m, "red")->kd.x);
     arbor_mesh_free(&m);
 }
