@@ -27,6 +27,11 @@ int arbor_cpu_count(void);
  * device, which differs between hosts mounting one NFS folder. */
 uint64_t arbor_file_stamp(const char *path);
 
+/* True when the real path `real` (realpath(3): links and ".." resolved)
+ * lies inside the real folder `dir`: the rule for what may be read beside a
+ * model (its material libraries). */
+bool arbor_real_path_inside(const char *real, const char *dir);
+
 /* Asks the kernel to map now, writable, the whole pages inside [p, p +
  * bytes) of memory about to be written, rather than one page fault at a
  * time as the writes first touch them. Only a hint, for large fresh

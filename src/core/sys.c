@@ -28,6 +28,14 @@ int arbor_cpu_count(void)
  * Not the device: an NFS client numbers the mount when it mounts it, so
  * hosts sharing a folder (and one host after a remount) see other device
  * numbers for the same file, and its identity must not change with them. */
+bool arbor_real_path_inside(const char *real, const char *dir)
+{
+    size_t n = strlen(dir);
+    if (n == 1 && dir[0] == '/')
+        return real[0] == '/';
+    return strncmp(real, dir, n) == 0 && real[n] == '/';
+}
+
 uint64_t arbor_file_stamp(const char *path)
 {
     struct stat st;

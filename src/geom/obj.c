@@ -17,6 +17,7 @@
 #include <string.h>
 
 #include "arbor/load.h"
+#include "arbor/sys.h"
 #include "loader.h"
 
 /* At most this many distinct material libraries per model: each one is a
@@ -187,15 +188,6 @@ static bool use_material(obj_reader *r, arbor_err *e)
     return material_table_add(&r->mats, &r->c, name, &r->mat, e);
 }
 
-/* True when the real path `real` lies inside the real folder `dir`. */
-static bool real_path_inside(const char *real, const char *dir)
-{
-    size_t n = strlen(dir);
-    if (n == 1 && dir[0] == '/')
-        return real[0] == '/';
-    return strncmp(real, dir, n) == 0 && real[n] == '/';
-}
-
 /* The model folder's real path, resolved at the first mtllib; NULL (and a
  * warning) when it cannot be. Running out of memory is no reason to load
  * the model without its materials: it fails the load (false). */
@@ -258,7 +250,7 @@ static bool load_library(obj_reader *r, const char *w, size_t n, arbor_err *e)
             !arbor_mesh_add_missing_library(r->m, w, n, e))
             return false;
         ok = arbor_fail_errno(&err, path, "cannot open", why);
-    } else if (!real_path_inside(real, dir)) {
+    } else if (!arbor_real_path_inside(real, dir)) {
         arbor_mesh_warn(r->m, "%s:%u: material library '%.*s' is outside the model's folder; not loaded", r->c.name,
                         r->c.line, text_shown(n), w);
         free(real);

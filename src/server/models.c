@@ -9,6 +9,7 @@
  * removes the folder. The folder gives .mtl files a place to resolve
  * against, and the loaders' containment check keeps them in it.
  */
+#define _XOPEN_SOURCE 700 /* realpath, beyond the build's _POSIX_C_SOURCE */
 #include <dirent.h>
 #include <limits.h>
 #include <errno.h>
@@ -419,16 +420,22 @@ static uint32_t stage_folder_libraries(upload_parts *u, const char *dir, const a
 {
     uint32_t copied = 0;
     char src[PATH_MAX], why[PATH_MAX + 128];
+    char *real_dir = dir != NULL && m->nmissing_libraries > 0 ? realpath(dir, NULL) : NULL;
     struct stat st;
-    for (uint32_t i = 0; dir != NULL && i < m->nmissing_libraries; i++) {
+    for (uint32_t i = 0; real_dir != NULL && i < m->nmissing_libraries; i++) {
         const char *lib = m->missing_libraries[i];
         snprintf(src, sizeof src, "%s/%s", dir, lib);
-        if (lib[0] != '.' && folder_is_material_file(lib) && u->nfiles < UPLOAD_FILES_MAX && stat(src, &st) == 0 &&
-            S_ISREG(st.st_mode) && folder_copy_file(u->dir, lib, src, why, sizeof why)) {
+        /* the loader's rule: a library is read only where its real path,
+         * links resolved, lies inside the model's folder */
+        char *real = lib[0] != '.' && folder_is_material_file(lib) ? realpath(src, NULL) : NULL;
+        if (real != NULL && arbor_real_path_inside(real, real_dir) && stat(real, &st) == 0 &&
+            S_ISREG(st.st_mode) && u->nfiles < UPLOAD_FILES_MAX && folder_copy_file(u->dir, lib, real, why, sizeof why)) {
             u->nfiles++;
             copied++;
         }
+        free(real);
     }
+    free(real_dir);
     return copied;
 }
 

@@ -347,6 +347,7 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
     s.nodes = 7;
     s.sah_cost = NAN;
     s.bytes = 1000;
+    s.binary_bytes = 1000;
     o = arbor_report_tree_stats("m.obj", 12, ARBOR_ACCEL_KD, ARBOR_BUILD_MEAN, &s, ARBOR_LAYOUT_BINARY);
     keys_of(o, keys, sizeof keys);
     TEST_ASSERT_EQUAL_STRING("model,triangles,accel,builder,layout,build_ms,nodes,leaves,empty_leaves,max_depth,"
@@ -363,8 +364,9 @@ static void test_json_keys_and_null_for_what_does_not_apply(void)
     TEST_ASSERT_FALSE(arbor_tree_layout_stats(&s, ARBOR_LAYOUT_WIDE, &l));
 
     /* a tree with a wide layout: its own numbers, and the binary tree's
-     * bytes are the tree's less the wide tree's */
+     * bytes as built (here 600 of the 1000 the tree holds) */
     s.has_wide = true;
+    s.binary_bytes = 600;
     s.wide.nodes = 3;
     s.wide.bytes = 400;
     s.wide.sah_cost = 2.5;
