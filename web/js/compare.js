@@ -44,9 +44,9 @@ export class Compare {
         $('cmp-cancel').addEventListener('click', () => this.cancel());
     }
 
+    /** The viewer's model changed: its charts, unless a job's are being drawn (they stay until it ends). */
     modelChanged() {
         const m = this.app.state.model;
-        $('cmp-model').textContent = m || '—';
         if (!this.job) this.draw(m, this.results.get(m) || null);
     }
 
@@ -105,7 +105,7 @@ export class Compare {
             this.results.set(job.model, j.rows || []);
             this.finish();
             $('cmp-progress-text').textContent = `done: ${(j.rows || []).length} rows in ${secs} s`;
-            this.draw(job.model, j.rows || []);
+            this.modelChanged();
         } else if (j.state === 'failed' || j.state === 'cancelled') {
             const run = this.results.has(job.model) ? 'The re-run of the benchmark' : 'The benchmark';
             this.ended(job, j.state === 'failed'
@@ -142,6 +142,12 @@ export class Compare {
     /** The job ended unfinished: the charts go back to the model's last finished run, or,
      *  without one, show what the job measured (rows) with no placeholders for the rest. */
     ended(job, text, rows) {
+        if (job.model !== this.app.state.model) {
+            // the viewer moved on to another model meanwhile: its charts
+            this.fail(text);
+            this.modelChanged();
+            return;
+        }
         const last = this.results.get(job.model);
         this.fail(last ? `${text} The charts show the last finished run.` : text);
         this.draw(job.model, last || (rows && rows.length ? rows : null));
@@ -150,6 +156,8 @@ export class Compare {
     /** Draws the eight charts for a model's bench rows (partial while running; peer: the job
      *  asked for Embree, whose row comes last, so its charts keep room for it from the start). */
     draw(model, rows, partial = false, peer = false) {
+        // the heading names the model whose charts these are
+        $('cmp-model').textContent = model || '—';
         const el = $('charts');
         if (!rows) {
             el.innerHTML = '';

@@ -6,7 +6,7 @@ import * as api from './api.js';
 import { protocolOrbit, clampPitch, requestCamera } from './camera.js';
 import { Pane } from './view.js';
 import { attachControls, MIN_DISTANCE, MAX_DISTANCE } from './controls.js';
-import { renderStats, renderLegend, renderRay } from './panels.js';
+import { renderStats, renderLegend, renderRay, triangles } from './panels.js';
 import { Compare } from './compare.js';
 import { Uploader } from './upload.js';
 
@@ -174,7 +174,7 @@ class App {
         for (const m of [...this.models.values()].sort((a, b) => a.name.localeCompare(b.name))) {
             const o = document.createElement('option');
             o.value = m.name;
-            o.textContent = `${m.name} (${(m.triangles ?? 0).toLocaleString('en-US')} triangles)`;
+            o.textContent = `${m.name} (${triangles(m.triangles)})`;
             sel.append(o);
         }
         if (!this.models.size) {

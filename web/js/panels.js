@@ -11,6 +11,9 @@ export function fmt(v, digits = 2) {
     return v.toLocaleString('en-US', { minimumFractionDigits: d, maximumFractionDigits: d });
 }
 
+/** "1 triangle", "3,152 triangles". */
+export const triangles = (n) => `${(n ?? 0).toLocaleString('en-US')} triangle${n === 1 ? '' : 's'}`;
+
 export function fmtBytes(b) {
     if (b === null || b === undefined) return '—';
     const units = ['B', 'KiB', 'MiB', 'GiB'];

@@ -6,6 +6,7 @@
 
 import { ApiError, errorFromText, savedToken, tokenRefused } from './api.js';
 import { askToken } from './token.js';
+import { triangles } from './panels.js';
 
 const $ = (id) => document.getElementById(id);
 const MODEL_RE = /\.(obj|ply)(\.gz)?$|\.gz$/i;
@@ -20,7 +21,7 @@ export function modelName(filename) {
 export class Uploader {
     constructor(app) {
         this.app = app;
-        this.xhr = null;
+        this.hideTimer = 0;
         $('upload-button').addEventListener('click', () => $('file-input').click());
         $('file-input').addEventListener('change', (e) => {
             const files = [...e.target.files];
@@ -56,6 +57,8 @@ export class Uploader {
     }
 
     status(text, { progress = null, error = false, actions = [] } = {}) {
+        // a later upload's news is not hidden with an earlier success
+        clearTimeout(this.hideTimer);
         const box = $('upload-status');
         box.hidden = false;
         box.classList.toggle('error', error);
@@ -95,7 +98,6 @@ export class Uploader {
         const name = modelName(file.name);
         const url = `/api/models/${encodeURIComponent(name)}${replace ? '?replace=1' : ''}`;
         const xhr = new XMLHttpRequest();
-        this.xhr = xhr;
         let body;
         if (mtls.length && /\.obj$/i.test(file.name)) {
             body = new FormData();
@@ -120,7 +122,6 @@ export class Uploader {
             this.status(`${what}: sent; the daemon is reading the model…`, { progress: 1 });
         };
         xhr.onload = () => {
-            this.xhr = null;
             if (xhr.status === 200 || xhr.status === 201) {
                 let m;
                 try {
@@ -130,9 +131,8 @@ export class Uploader {
                     return;
                 }
                 const warn = (m.warnings || []).length ? ` Warnings: ${m.warnings.join('; ')}` : '';
-                this.status(`Uploaded "${m.name}": ${(m.triangles ?? 0).toLocaleString('en-US')} triangles.${warn}`,
-                    { actions: [close] });
-                if (!warn) setTimeout(() => { if (!this.xhr) this.hide(); }, 5000);
+                this.status(`Uploaded "${m.name}": ${triangles(m.triangles)}.${warn}`, { actions: [close] });
+                if (!warn) this.hideTimer = setTimeout(() => this.hide(), 5000);
                 this.app.addModel(m);
                 return;
             }
@@ -152,11 +152,9 @@ export class Uploader {
             this.status(err.words, { error: true, actions });
         };
         xhr.onerror = () => {
-            this.xhr = null;
             this.status(new ApiError(what, 0, '', 'the connection failed').words, { error: true, actions: [close] });
         };
         xhr.onabort = () => {
-            this.xhr = null;
             this.status(`${what}: cancelled.`, { actions: [close] });
         };
         xhr.send(body);
