@@ -152,12 +152,12 @@ test('the depth slider draws boxes whose root box, projected, encloses the rende
                 assert.ok(Math.abs(a - b) <= 4, `root box ${ov.bbox.map(Math.round)} is not the box's silhouette ${px.bbox}`);
             }
         }
-        // deeper levels draw more boxes
-        await page.fill('#depth', '3');
+        // deeper levels draw more boxes: the wide BVH's deepest is 1 (the slider's end)
+        await page.fill('#depth', '1');
         await page.dispatchEvent('#depth', 'input');
-        await page.waitForFunction(() => /at depth 3/.test(document.getElementById('boxes-info').textContent), null, { timeout: 30000 });
+        await page.waitForFunction(() => /at depth 1/.test(document.getElementById('boxes-info').textContent), null, { timeout: 30000 });
         const n = await page.textContent('#boxes-info');
-        assert.match(n, /(\d+) boxes at depth 3/);
+        assert.ok(Number(/(\d+) boxes at depth 1/.exec(n)?.[1]) > 1, n);
         assert.deepEqual(errors, []);
     });
 });

@@ -110,8 +110,9 @@ export async function getJSON(what, url) {
     return res.json();
 }
 
-export async function postJSON(what, url, body, auth = false) {
+export async function postJSON(what, url, body, auth = false, init = {}) {
     const res = await call(what, url, {
+        ...init,
         method: 'POST',
         headers: { 'Content-Type': 'application/json' },
         body: JSON.stringify(body),
@@ -165,8 +166,9 @@ export async function renderFrame(req, init = {}) {
     };
 }
 
-export const renderJSON = (req) =>
-    postJSON('Measuring the frame', '/api/render', { ...req, format: 'json' });
+/** A frame's statistics (format=json); init.signal aborts it. */
+export const renderJSON = (req, init = {}) =>
+    postJSON('Measuring the frame', '/api/render', { ...req, format: 'json' }, false, init);
 
 export const startBench = (body) => postJSON(`Starting the benchmark of ${body.model}`, '/api/bench', body, true);
 export const getJob = (id) => getJSON(`Reading benchmark job ${id}`, `/api/jobs/${enc(id)}`);

@@ -4,7 +4,7 @@
 
 import * as api from './api.js';
 import { protocolOrbit, clampPitch, requestCamera } from './camera.js';
-import { Pane } from './view.js';
+import { Pane, rowSamples } from './view.js';
 import { attachControls, MIN_DISTANCE, MAX_DISTANCE } from './controls.js';
 import { renderStats, renderLegend, renderRay, triangles } from './panels.js';
 import { Compare } from './compare.js';
@@ -15,6 +15,10 @@ const BUILDERS = ['spatial', 'median', 'mean', 'sah'];
 const MODES = ['shaded', 'normals', 'depth', 'ao', 'heat'];
 const SPPS = [1, 4, 9, 16, 64];
 const REST_MS = 180;
+// the daemon's default --max-pixels, samples a request may cost (API.md); a 400 saying a smaller one lowers it
+const MAX_SAMPLES = 16777216;
+// the model list is asked for again after this while the daemon cannot give it
+const LIST_RETRY_MS = 2000;
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => (v === null || v === '' || v === undefined ? NaN : Number(v));
@@ -100,6 +104,7 @@ class App {
         this.rayInspect = null;
         this.rayToken = 0;
         this.drawQueued = false;
+        this.maxSamples = MAX_SAMPLES;
         this.dark = matchMedia('(prefers-color-scheme: dark)');
         this.dark.addEventListener('change', () => this.pumpAll());
     }
@@ -148,12 +153,7 @@ class App {
         this.rebuildPanes();
         this.syncControls();
         this.showTab(this.state.tab);
-        try {
-            const list = await api.listModels();
-            for (const m of list) this.models.set(m.name, m);
-        } catch (e) {
-            this.notify(e.words || String(e), 'error');
-        }
+        for (const m of await this.listModels()) this.models.set(m.name, m);
         this.fillModels();
         if (!this.models.has(this.state.model)) {
             if (this.state.model) this.notify(`There is no model "${this.state.model}" on the daemon; showing another.`, 'error');
@@ -166,6 +166,23 @@ class App {
         this.loadBoxes();
         this.saveURL(true);
         this.compare.modelChanged();
+    }
+
+    /** The daemon's models, asked for until it answers (the URL's model is kept meanwhile). */
+    async listModels() {
+        let notice = null;
+        for (;;) {
+            try {
+                const list = await api.listModels();
+                if (notice) notice.remove();
+                return list;
+            } catch (e) {
+                const text = `${e.words || String(e)} Trying again every ${LIST_RETRY_MS / 1000} s…`;
+                if (!notice || !notice.isConnected) notice = this.notify(text, 'error');
+                else notice.querySelector('span').textContent = text;
+            }
+            await new Promise((r) => setTimeout(r, LIST_RETRY_MS));
+        }
     }
 
     fillModels(select) {
@@ -193,20 +210,30 @@ class App {
         } catch { /* keep the old record */ }
     }
 
-    async addModel(m) {
+    /** An uploaded model, new or replacing one of the same name: shown afresh either way. */
+    addModel(m) {
         this.models.set(m.name, m);
         this.fillModels(m.name);
-        this.setModel(m.name);
+        this.setModel(m.name, true);
     }
 
-    setModel(name) {
-        if (name === this.state.model) return;
+    /** Shows model `name`; replaced: the same name holds another model now. */
+    setModel(name, replaced = false) {
+        if (name === this.state.model && !replaced) return;
         this.state.model = name;
         $('model').value = name;
         this.state.view.target = null;
         this.clearRay();
+        for (const p of this.panes) p.clearModel();
         this.changed({ boxes: true });
         this.compare.modelChanged();
+    }
+
+    /** The daemon renders at most n samples per request (its --max-pixels): frames are split by that. */
+    setMaxSamples(n) {
+        this.maxSamples = n;
+        this.syncControls();
+        this.pumpAll();
     }
 
     rebuildPanes() {
@@ -237,7 +264,7 @@ class App {
         $('res').addEventListener('change', (e) => {
             s.res = e.target.value.split('x').map(Number);
             this.clearRay();
-            for (const p of this.panes) p.setAspect();
+            // each pane takes the new aspect with its first frame at it: the old frame is not stretched meanwhile
             this.changed();
         });
         $('reset').addEventListener('click', () => this.resetView());
@@ -291,6 +318,12 @@ class App {
         $('builder').value = s.builder;
         $('mode').value = s.mode;
         $('spp').value = String(s.spp);
+        for (const o of $('spp').options) {
+            // frames are split into strips down to a row; past that the daemon refuses them
+            const over = rowSamples({ width: s.res[0], spp: Number(o.value), mode: s.mode }) > this.maxSamples;
+            o.disabled = over && Number(o.value) !== s.spp;
+            o.title = over ? `over this daemon's ${this.maxSamples.toLocaleString('en-US')} samples per request (--max-pixels)` : '';
+        }
         const res = `${s.res[0]}x${s.res[1]}`;
         if (![...$('res').options].some((o) => o.value === res)) {
             const o = document.createElement('option');
@@ -320,7 +353,11 @@ class App {
         $('view-section').hidden = tab !== 'view';
         $('compare-section').hidden = tab !== 'compare';
         this.saveURL();
-        if (tab === 'view') this.scheduleDraw();
+        // the hidden viewer asks for no frames (view.js pump)
+        if (tab === 'view') {
+            this.pumpAll();
+            this.scheduleDraw();
+        }
     }
 
     /** Something in the state changed: frames, boxes, URL, panels. */
@@ -372,6 +409,7 @@ class App {
         for (const p of this.panes) {
             const name = `${p.tree().accel === 'kd' ? 'k-d' : 'BVH'} ${p.tree().builder}`;
             if (p.building) parts.push(`${name}: building…`);
+            else if (!this.model()) parts.push(`${name}: waiting for the daemon's models…`);
             else if (!p.boxes) parts.push(`${name}: loading boxes…`);
             else if (p.boxes.error) {
                 err = true;
@@ -416,7 +454,9 @@ class App {
         renderLegend($('legend'), $('legend-bars'), this);
         renderRay($('ray-panel'), this);
         this.boxesInfo();
-        const st = this.panes[0] && this.panes[0].stats;
+        const stats = this.panes[0] && this.panes[0].stats;
+        // the boxes are those of the tree rays traverse: a BVH's wide tree, a k-d tree's own
+        const st = stats && (stats.wide || stats);
         if (st && Number.isInteger(st.max_depth)) {
             const depth = $('depth');
             const max = Math.max(st.max_depth, this.state.boxes.depth);

@@ -12,23 +12,29 @@ export function depthColour(depth, alpha = 1) {
 /**
  * Draws boxes on a 2D context whose pixel grid is `sx` x `sy` times the
  * frame's (cam.width x cam.height). style(box, i) -> {colour, width} or null.
+ * One path per style, stroked once: thousands of boxes share a few depths' colours.
  */
 export function drawBoxes(ctx, cam, boxes, sx, sy, style) {
+    const paths = new Map(); // "colour width" -> {s, path}
     for (let i = 0; i < boxes.length; i++) {
         const b = boxes[i];
         const s = style(b, i);
         if (!s) continue;
+        const id = `${s.colour} ${s.width}`;
+        let p = paths.get(id);
+        if (!p) paths.set(id, p = { s, path: new Path2D() });
         const corners = boxCorners(b);
-        ctx.strokeStyle = s.colour;
-        ctx.lineWidth = s.width;
-        ctx.beginPath();
         for (const [i0, i1] of BOX_EDGES) {
             const seg = projectSegment(cam, corners[i0], corners[i1]);
             if (!seg) continue;
-            ctx.moveTo(seg[0][0] * sx, seg[0][1] * sy);
-            ctx.lineTo(seg[1][0] * sx, seg[1][1] * sy);
+            p.path.moveTo(seg[0][0] * sx, seg[0][1] * sy);
+            p.path.lineTo(seg[1][0] * sx, seg[1][1] * sy);
         }
-        ctx.stroke();
+    }
+    for (const { s, path } of paths.values()) {
+        ctx.strokeStyle = s.colour;
+        ctx.lineWidth = s.width;
+        ctx.stroke(path);
     }
 }
 

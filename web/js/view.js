@@ -4,11 +4,12 @@
 // at rest, for the full frame, as horizontal strips (`region`) asked for at
 // once and drawn as each arrives: behind a load balancer every node renders
 // some, and on one daemon the frame still shows progressively (the strips
-// are the whole frame's pixels, bit for bit). Heat frames stay whole: their
-// colours scale to the whole frame's 99th percentile. Never more than one
-// frame in flight: a quick frame is awaited, a full frame the view no longer
-// wants is aborted and superseded on the daemon by the next frame with the
-// same `stream` key (the pane's, one per strip).
+// are the whole frame's pixels, bit for bit). Heat frames stay whole (their
+// colours scale to the whole frame's 99th percentile) unless the daemon's
+// budget of samples per request (--max-pixels) splits them too. Never more
+// than one frame in flight: a quick frame is awaited, a full frame the view
+// no longer wants is aborted and superseded on the daemon by the next frame
+// with the same `stream` key (the pane's, one per strip).
 
 import * as api from './api.js';
 import { cameraFromRequest, requestCamera, project } from './camera.js';
@@ -16,11 +17,30 @@ import { drawBoxes, drawMarker, depthColour, projectedRect } from './overlay.js'
 
 const QUICK_PIXELS = 80000;
 const STRIP_ROWS = 128;
+// strips asked for at once: more wait for a slot, as the daemon's queue is bounded (--queue)
 const MAX_STRIPS = 8;
+// the daemon's default ao_samples (API.md), part of an ao frame's cost
+const AO_SAMPLES = 8;
+// a failed frame, tree statistics or boxes that may succeed later (the daemon was away or busy) are asked again after this
+const RETRY_MS = 2000;
 
-/** The regions of a full frame: horizontal strips of about STRIP_ROWS rows, at most MAX_STRIPS. */
-export function stripRegions(w, h) {
-    const n = Math.max(1, Math.min(MAX_STRIPS, Math.round(h / STRIP_ROWS)));
+/** Samples one row of a frame costs on the daemon: width x spp (x ao_samples in ao mode), as --max-pixels counts. */
+export function rowSamples(req) {
+    return req.width * req.spp * (req.mode === 'ao' ? req.ao_samples ?? AO_SAMPLES : 1);
+}
+
+/** A failure worth asking again for later: the daemon unreachable, busy or failing for now. */
+const transient = (e) => e.status === 0 || e.status >= 500;
+
+/**
+ * The regions of a full frame: horizontal strips of about STRIP_ROWS rows, at
+ * most MAX_STRIPS, or more when a strip would cost more than maxSamples
+ * (rowCost per row); null when a single row already does.
+ */
+export function stripRegions(w, h, rowCost = 0, maxSamples = Infinity) {
+    const rows = Math.floor(maxSamples / rowCost);
+    if (rows < 1) return null;
+    const n = Math.max(1, Math.min(MAX_STRIPS, Math.round(h / STRIP_ROWS)), Math.ceil(h / rows));
     const out = [];
     for (let i = 0; i < n; i++) {
         const y0 = Math.floor((h * i) / n), y1 = Math.floor((h * (i + 1)) / n);
@@ -47,11 +67,14 @@ export class Pane {
         this.shown = null;         // {key, quick, req, cam (basis), heatScale, renderMs, mrays, bounds}
         this.lastFull = null;      // {blob, req}
         this.error = null;
-        this.stats = null;
+        this.stats = null;         // STATS | {error, at}
         this.statsKey = '';
+        this.statsNotice = null;   // the notice of a failed build, removed once the statistics come
         this.building = null;      // {key, start, timer}
         this.boxes = null;         // {key, data} | {key, error}
         this.boxesLoading = '';
+        this.retryTimer = 0;
+        this.overlayDrawn = null;  // {camera, boxes, ray} the overlay shows: drawOverlay skips redrawing them
         this.ray = null;           // {req, data, heat}
         this.heat = null;          // {tree, scale}: the last full heat frame's X-Heat-Scale
         this.frameTimes = [];      // arrival times of quick frames while moving (FPS)
@@ -81,7 +104,7 @@ export class Pane {
         this.titleName = el.querySelector('.tree-name');
         this.titleInfo = el.querySelector('.frame-info');
         this.canvas.dataset.pane = String(this.index);
-        new ResizeObserver(() => this.drawOverlay()).observe(this.frame);
+        new ResizeObserver(() => this.app.scheduleDraw()).observe(this.frame);
         return el;
     }
 
@@ -89,9 +112,10 @@ export class Pane {
         return this.app.treeOf(this.index);
     }
 
+    /** The tree's model, kind and builder; the model's version too, so a model replaced under the same name is another. */
     treeKey() {
-        const t = this.tree();
-        return `${this.app.state.model}/${t.accel}/${t.builder}`;
+        const t = this.tree(), model = this.app.model();
+        return `${this.app.state.model}@${model ? model.version : ''}/${t.accel}/${t.builder}`;
     }
 
     /** The render request for the current view; quick: the moving-view frame. */
@@ -124,6 +148,27 @@ export class Pane {
         this.app.viewportAspect(W / H);
     }
 
+    /** Forgets what the pane shows and knows of the model: another model was chosen, or this one replaced. */
+    clearModel() {
+        if (this.inflight) this.inflight.controller.abort();
+        this.inflight = null;
+        this.stopBuilding();
+        this.shown = null;
+        this.lastFull = null;
+        this.heat = null;
+        this.stats = null;
+        this.statsKey = '';
+        this.boxes = null;
+        this.boxesLoading = '';
+        this.clearError();
+        this.canvas.getContext('2d').clearRect(0, 0, this.canvas.width, this.canvas.height);
+        delete this.canvas.dataset.frame;
+        delete this.canvas.dataset.camera;
+        this.badgeQuality.hidden = true;
+        this.titleInfo.textContent = '';
+        this.app.scheduleDraw();
+    }
+
     /** Asks for whatever frame the view wants now, if it can. */
     pump() {
         const app = this.app;
@@ -135,10 +180,11 @@ export class Pane {
             `Frame of ${app.state.model}, ${t.accel} ${t.builder} tree, ${app.state.mode} mode. ` +
             'Drag to orbit, arrow keys orbit, plus and minus zoom, click to inspect a ray.');
         this.ensureTree();
-        if (this.building) return;
+        // building this tree: its frame waits; frames of a hidden viewer would compete with a benchmark
+        if (this.building || app.state.tab !== 'view') return;
         const quick = app.moving;
         const req = this.request(quick);
-        const key = JSON.stringify(req);
+        const key = `${this.treeKey()} ${JSON.stringify(req)}`;
         if (this.inflight) {
             if (this.inflight.key === key) return;
             if (!this.inflight.quick) {
@@ -155,26 +201,46 @@ export class Pane {
         this.send(req, key, quick);
     }
 
+    /** The regions to ask a frame as (null: whole), within the daemon's samples per request; null if it cannot be. */
+    regionsOf(req, quick) {
+        const budget = this.app.maxSamples, perRow = rowSamples(req);
+        if ((quick || req.mode === 'heat') && perRow * req.height <= budget) return [null];
+        return stripRegions(req.width, req.height, perRow, budget);
+    }
+
     async send(req, key, quick) {
         const controller = new AbortController();
         const flight = { key, quick, controller };
         this.inflight = flight;
+        const regions = this.regionsOf(req, quick);
+        if (!regions) {
+            this.inflight = null;
+            this.showError(key, { words: `A ${req.width}×${req.height} frame at ${req.spp} spp${req.mode === 'ao' ? ` with ${AO_SAMPLES} occlusion samples` : ''} ` +
+                `costs more than this daemon renders in one request, even one row at a time (--max-pixels ${this.app.maxSamples.toLocaleString('en-US')} samples): ` +
+                'choose fewer samples per pixel or a smaller resolution.' });
+            this.app.panesChanged();
+            return;
+        }
         this.badgeQuality.hidden = false;
         this.badgeQuality.textContent = quick ? 'moving: quick frame' : `rendering ${req.width}×${req.height}, ${req.spp} spp…`;
         const sent = performance.now();
-        const regions = quick || req.mode === 'heat' ? [null] : stripRegions(req.width, req.height);
         let frame;
         try {
             frame = await this.fetchFrame(req, regions, flight);
         } catch (e) {
             controller.abort();
             if (this.inflight === flight) this.inflight = null;
-            if (e.name === 'AbortError') return;
+            if (e.name === 'AbortError' || this.inflight) return;
             if (e.code === 'superseded') { this.pump(); return; }
+            // a daemon started with a smaller --max-pixels than assumed says its limit: split by it
+            const limit = e.status === 400 && /over the limit of (\d+)/.exec(e.daemonMessage || '');
+            if (limit && Number(limit[1]) < this.app.maxSamples) {
+                this.app.setMaxSamples(Number(limit[1]));
+                return;
+            }
             this.showError(key, e);
-            if (e.code === 'busy') {
-                const wait = Math.min(5000, Math.max(200, (e.retryAfter || 0.5) * 1000));
-                this.error.retry = false;
+            if (transient(e)) {
+                const wait = Math.min(5000, Math.max(200, e.retryAfter ? e.retryAfter * 1000 : RETRY_MS));
                 setTimeout(() => { if (this.error && this.error.key === key) { this.error.retry = true; this.pump(); } }, wait);
             }
             this.app.panesChanged();
@@ -199,7 +265,7 @@ export class Pane {
         if (!quick) {
             this.lastFull = { blob: frame.blob, req };
             if (!frame.blob) this.canvas.toBlob((b) => { if (this.lastFull && this.lastFull.req === req) this.lastFull.blob = b; });
-            if (req.mode === 'heat' && frame.heatScale > 0) this.heat = { tree: `${req.model}/${req.accel}/${req.builder}`, scale: frame.heatScale };
+            if (req.mode === 'heat' && frame.heatScale > 0) this.heat = { tree: this.treeKey(), scale: frame.heatScale };
         }
         const now = performance.now();
         if (quick) {
@@ -212,31 +278,41 @@ export class Pane {
         }
         this.badgeQuality.hidden = true;
         this.titleInfo.textContent = `${req.width}×${req.height} · ${req.spp} spp${quick ? ' (quick)' : ''}`;
-        this.drawOverlay();
         this.app.panesChanged();
         this.pump();
     }
 
     /**
-     * Asks for the frame's regions at once (null: the whole frame, scaled to
-     * the canvas) and draws each as it arrives. Resolves to the frame's totals:
-     * render ms and rays summed over the strips, the PNG of a whole frame.
+     * Asks for the frame's regions (null: the whole frame, scaled to the
+     * canvas), at most MAX_STRIPS at once, and draws each as it arrives; the
+     * canvas takes the frame's size and aspect with the first. Resolves to the
+     * frame's totals: for strips, the wall time from the first request to the
+     * last strip (they render side by side) and the rays over it; the PNG of a
+     * whole frame. A heat frame in strips is coloured to one scale: the 99th
+     * percentile of the same view at 1 spp, asked for first.
      */
     async fetchFrame(req, regions, flight) {
         const [W, H] = this.app.state.res;
-        const parts = await Promise.all(regions.map(async (region, i) => {
+        const start = performance.now();
+        let heatScale = null;
+        if (req.mode === 'heat' && regions[0] && !req.heat_scale) {
+            heatScale = (await api.renderJSON({ ...req, spp: 1 }, { signal: flight.controller.signal })).heat_scale;
+            req = { ...req, heat_scale: heatScale };
+        }
+        const part = async (region, i) => {
             const body = region ? { ...req, region, stream: `${this.stream}/${i}` } : { ...req, stream: this.stream };
-            const part = await api.renderFrame(body, { signal: flight.controller.signal });
+            const got = await api.renderFrame(body, { signal: flight.controller.signal });
             let bitmap;
             try {
-                bitmap = await createImageBitmap(part.blob);
+                bitmap = await createImageBitmap(got.blob);
             } catch (e) {
                 throw new api.ApiError('Decoding the frame', 200, '', e.message);
             }
-            if (this.inflight !== flight) { bitmap.close(); return part; }
+            if (this.inflight !== flight) { bitmap.close(); return got; }
             if (this.canvas.width !== W || this.canvas.height !== H) {
                 this.canvas.width = W;
                 this.canvas.height = H;
+                this.setAspect();
             }
             const ctx = this.canvas.getContext('2d');
             ctx.imageSmoothingEnabled = true;
@@ -244,13 +320,22 @@ export class Pane {
             if (region) ctx.drawImage(bitmap, region.x, region.y);
             else ctx.drawImage(bitmap, 0, 0, W, H);
             bitmap.close();
-            return part;
-        }));
+            return got;
+        };
+        const parts = [];
+        let next = 0;
+        const worker = async () => {
+            while (next < regions.length) {
+                const i = next++;
+                parts[i] = await part(regions[i], i);
+            }
+        };
+        await Promise.all(Array.from({ length: Math.min(MAX_STRIPS, regions.length) }, worker));
         if (parts.length === 1) return parts[0];
-        const sum = (k) => parts.reduce((a, p) => (p[k] === null || a === null ? null : a + p[k]), 0);
-        const renderMs = sum('renderMs'), rays = sum('rays');
+        const renderMs = performance.now() - start;
+        const rays = parts.reduce((a, p) => (p.rays === null || a === null ? null : a + p.rays), 0);
         return {
-            blob: null, renderMs, rays, heatScale: null,
+            blob: null, renderMs, rays, heatScale,
             mrays: renderMs > 0 && rays !== null ? rays / renderMs / 1e3 : null,
             timing: parts.map((p) => p.timing).join('; '),
         };
@@ -269,24 +354,54 @@ export class Pane {
         this.badgeError.textContent = '';
     }
 
+    /** Asks again for what failed for now (statistics, boxes, the frame) after RETRY_MS, unasked. */
+    retryLater() {
+        clearTimeout(this.retryTimer);
+        this.retryTimer = setTimeout(() => {
+            this.pump();
+            this.loadBoxes();
+        }, RETRY_MS);
+    }
+
+    /** Stops showing a build: its tree is no longer the pane's (the daemon still finishes it). */
+    stopBuilding() {
+        if (!this.building) return;
+        clearInterval(this.building.timer);
+        this.building = null;
+        this.badgeBuilding.hidden = true;
+    }
+
+    /** The pane's tree's statistics came, or failed (kept with the time, to be asked again after RETRY_MS). */
+    statsArrived(key, stats, error) {
+        if (this.statsKey !== key) return;
+        if (error) {
+            this.stats = { error: error.words, at: performance.now() };
+            if (transient(error)) this.retryLater();
+            return;
+        }
+        this.stats = stats;
+        if (this.statsNotice) this.statsNotice.remove();
+        this.statsNotice = null;
+    }
+
     /** Builds the pane's tree (showing "building" with the elapsed time) and fetches its statistics. */
     ensureTree() {
         const app = this.app;
         const key = this.treeKey();
-        if (this.statsKey === key || (this.building && this.building.key === key)) return;
+        if (this.building && this.building.key === key) return;
+        const failed = this.stats && this.stats.error;
+        if (this.statsKey === key && !(failed && performance.now() - this.stats.at >= RETRY_MS)) return;
+        this.stopBuilding();
         const t = this.tree(), name = app.state.model;
         const model = app.model();
         const entry = (model.trees || []).find((e) => e.accel === t.accel && e.builder === t.builder);
         const ready = entry && entry.state === 'ready';
+        if (this.statsKey !== key) this.boxes = null;
         this.statsKey = key;
         this.stats = null;
-        this.boxes = null;
         if (ready || this.buildDoneKeys.has(key)) {
-            api.treeStats(name, t.accel, t.builder).then((s) => {
-                if (this.statsKey === key) { this.stats = s; app.panesChanged(); }
-            }, (e) => {
-                if (this.statsKey === key) { this.stats = { error: e.words }; app.panesChanged(); }
-            });
+            api.treeStats(name, t.accel, t.builder).then((s) => this.statsArrived(key, s), (e) => this.statsArrived(key, null, e))
+                .finally(() => app.panesChanged());
             app.panesChanged();
             return;
         }
@@ -301,24 +416,21 @@ export class Pane {
         this.badgeBuilding.hidden = false;
         building.timer = setInterval(tick, 100);
         app.panesChanged();
-        const finish = () => {
-            clearInterval(building.timer);
-            if (this.building === building) {
-                this.building = null;
-                this.badgeBuilding.hidden = true;
-            }
-        };
         // GET /api/stats of one tree builds it if absent and answers once it is
         // built; it is open where POST .../trees needs a token (--token-file)
         api.treeStats(name, t.accel, t.builder).then((s) => {
             this.buildDoneKeys.add(key);
-            if (this.statsKey === key) this.stats = s;
+            this.statsArrived(key, s);
             app.refreshModel(name);
         }, (e) => {
-            if (this.statsKey === key) this.stats = { error: e.words };
-            app.notify(e.words, 'error');
+            this.statsArrived(key, null, e);
+            if (this.building === building) {
+                if (this.statsNotice) this.statsNotice.remove();
+                this.statsNotice = app.notify(e.words, 'error');
+            }
         }).finally(() => {
-            finish();
+            if (this.building !== building) return; // another tree's build, or none, is shown now
+            this.stopBuilding();
             app.panesChanged();
             this.pump();
             app.loadBoxes();
@@ -330,14 +442,15 @@ export class Pane {
         const app = this.app, b = app.state.boxes;
         if (!b.on || !app.model()) {
             this.boxes = null;
-            this.drawOverlay();
+            app.scheduleDraw();
             return;
         }
         if (this.building) return; // after the build
         const t = this.tree();
         const kind = b.leaves ? 'leaves' : b.all ? 'all' : 'depth';
         const key = `${this.treeKey()}/${b.depth}/${kind}`;
-        if ((this.boxes && this.boxes.key === key) || this.boxesLoading === key) return;
+        // boxes that failed are asked for again
+        if ((this.boxes && this.boxes.key === key && !this.boxes.error) || this.boxesLoading === key) return;
         this.boxesLoading = key;
         api.treeBoxes(app.state.model, t.accel, t.builder, b.depth, kind).then((data) => {
             if (this.boxesLoading !== key) return;
@@ -345,30 +458,41 @@ export class Pane {
         }, (e) => {
             if (this.boxesLoading !== key) return;
             this.boxes = { key, error: e };
+            if (transient(e)) this.retryLater();
         }).finally(() => {
             if (this.boxesLoading === key) this.boxesLoading = '';
-            this.drawOverlay();
             app.panesChanged();
         });
     }
 
-    /** Redraws boxes and the inspected ray with the camera of the frame shown. */
+    /**
+     * Redraws boxes and the inspected ray with the camera of the frame shown
+     * (from drawPanels: once per animation frame at most), unless they and
+     * the frame's camera and size are what the overlay shows already.
+     */
     drawOverlay() {
         const o = this.overlay;
         const rect = this.frame.getBoundingClientRect();
         const dpr = window.devicePixelRatio || 1;
         const w = Math.max(1, Math.round(rect.width * dpr)), h = Math.max(1, Math.round(rect.height * dpr));
+        const b = this.app.state.boxes;
+        const boxes = b.on && this.boxes && this.boxes.data ? this.boxes : null;
+        const ray = this.ray && this.ray.data ? this.ray : null;
+        const shown = this.shown;
+        const camera = JSON.stringify([w, h, shown && [shown.cam.width, shown.cam.height, shown.req.camera]]);
+        const drawn = this.overlayDrawn;
+        if (drawn && drawn.camera === camera && drawn.boxes === boxes && drawn.ray === ray) return;
+        this.overlayDrawn = { camera, boxes, ray };
         if (o.width !== w || o.height !== h) { o.width = w; o.height = h; }
         const ctx = o.getContext('2d');
         ctx.clearRect(0, 0, w, h);
         const rects = [];
-        if (!this.shown) { o.dataset.rects = '[]'; return; }
-        const cam = this.shown.cam;
+        if (!shown) { o.dataset.rects = '[]'; return; }
+        const cam = shown.cam;
         const sx = w / cam.width, sy = h / cam.height;
         const lw = Math.max(1, dpr);
-        const b = this.app.state.boxes;
-        if (b.on && this.boxes && this.boxes.data) {
-            const list = this.boxes.data.boxes || [];
+        if (boxes) {
+            const list = boxes.data.boxes || [];
             const alpha = list.length > 2000 ? 0.45 : list.length > 200 ? 0.7 : 0.95;
             drawBoxes(ctx, cam, list, sx, sy, (box) => ({
                 colour: depthColour(box.depth ?? b.depth, alpha),
@@ -376,16 +500,16 @@ export class Pane {
             }));
             for (const box of list.slice(0, 50)) rects.push(projectedRect(cam, box));
         }
-        if (this.ray && this.ray.data) {
+        if (ray) {
             // steps carry their box as {box: {min, max}} (API.md); accept a flat {min, max} too
-            const steps = (this.ray.data.steps || []).map((s) => ({ ...s, ...(s.box || {}) }))
+            const steps = (ray.data.steps || []).map((s) => ({ ...s, ...(s.box || {}) }))
                 .filter((s) => Array.isArray(s.min) && Array.isArray(s.max));
             drawBoxes(ctx, cam, steps, sx, sy, (s) => (s.leaf
                 ? { colour: s.tris > 0 ? 'rgba(255,150,40,.95)' : 'rgba(255,220,120,.6)', width: 2 * lw }
                 : { colour: 'rgba(120,200,255,.55)', width: 1 * lw }));
-            const hit = this.ray.data.hit;
+            const hit = ray.data.hit;
             const p = hit ? project(cam, hit.point) : null;
-            const mark = p || [this.ray.req.x + 0.5, this.ray.req.y + 0.5];
+            const mark = p || [ray.req.x + 0.5, ray.req.y + 0.5];
             drawMarker(ctx, mark, sx, sy, hit ? '#ff4fd8' : '#ffffff');
         }
         o.dataset.rects = JSON.stringify(rects.filter(Boolean).map((r) => r.map((v) => Math.round(v * 100) / 100)));
@@ -403,7 +527,8 @@ export class Pane {
 
     dispose() {
         if (this.inflight) this.inflight.controller.abort();
-        if (this.building) clearInterval(this.building.timer);
+        this.stopBuilding();
+        clearTimeout(this.retryTimer);
         this.el.remove();
     }
 }
