@@ -242,6 +242,12 @@ static cJSON *daemon_json(arbor_server *s)
     cJSON_AddNumberToObject(mem, "building", (double)u.reserved);
     cJSON_AddNumberToObject(mem, "limit", (double)u.limit);
     cJSON_AddNumberToObject(mem, "rss", (double)rss_bytes());
+    /* what one request may ask, so that a client (the viewer) splits its
+     * frames by them rather than by a refusal's words */
+    cJSON *lim = cJSON_AddObjectToObject(d, "limits");
+    cJSON_AddNumberToObject(lim, "max_pixels", (double)s->config.max_pixels);
+    cJSON_AddNumberToObject(lim, "max_body", (double)s->config.max_body);
+    cJSON_AddNumberToObject(lim, "max_upload", (double)s->config.max_upload);
     return d;
 }
 

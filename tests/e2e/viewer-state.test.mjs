@@ -212,6 +212,9 @@ test('frames over the default samples budget are split within it: ao and heat at
 test("a daemon's smaller --max-pixels: frames split by it, and what even a row exceeds is said and not offered", T, async () => {
     await withViewer({ daemon: { extraArgs: ['--max-pixels', '300000'] } }, async (d, { page, errors }) => {
         const rec = recordRequests(page);
+        // the page reads the daemon's limit (GET /api/stats) before its first frame: none is refused
+        const refused = [];
+        page.on('response', (r) => { if (r.url().includes('/api/render') && r.status() === 400) refused.push(r.url()); });
         await page.goto(`${d.base}/?model=cornell&spp=4`);
         await waitShown(page, { spp: 4 }, 60000);
         assert.equal(await page.$eval('.badge.error', (b) => b.hidden), true);
@@ -226,6 +229,7 @@ test("a daemon's smaller --max-pixels: frames split by it, and what even a row e
         await waitShown(page, { mode: 'ao', spp: 16 }, 60000);
         assert.equal(await page.$eval('#spp option[value="64"]', (o) => o.disabled), true, '64 spp is offered');
         assert.equal(await page.$eval('#spp option[value="16"]', (o) => o.disabled), false);
+        assert.deepEqual(refused, [], 'frames the daemon refused');
         assert.deepEqual(unprovoked(errors), []);
     });
 });

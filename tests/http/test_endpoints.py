@@ -5,7 +5,8 @@ import os
 import re
 import time
 
-from harness import (Daemon, add_test, default_web_daemon, check, eq, expect_json, expect_ok, fail, ignore, main_daemon,
+from harness import (Daemon, add_test, default_web_daemon, check, eq, expect_json, expect_ok, fail, ignore, limits_daemon,
+                     main_daemon,
                      need_shared, our, our_readme_counts, png_of, shared_readme_counts, test, run_cli,
                      metric_value, REPO, ARBORD)
 
@@ -267,6 +268,9 @@ def test_stats_daemon_section():
     eq(dm2["frames"], dm["frames"] + 1, "daemon.frames after one frame")
     eq(dm2["rays"], dm["rays"] + int(r.header("X-Rays")), "daemon.rays after one frame of X-Rays")
     check(dm2["uptime_s"] >= dm["uptime_s"], "uptime_s went back")
+    limits = expect_json(limits_daemon().get("/api/stats"))["daemon"]["limits"]
+    eq(limits, {"max_pixels": 100000, "max_body": 4096, "max_upload": 65536},
+       "daemon.limits of --max-pixels 100000 --max-body 4K --max-upload 64K")
 
 
 @test

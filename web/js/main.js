@@ -15,7 +15,8 @@ const BUILDERS = ['spatial', 'median', 'mean', 'sah'];
 const MODES = ['shaded', 'normals', 'depth', 'ao', 'heat'];
 const SPPS = [1, 4, 9, 16, 64];
 const REST_MS = 180;
-// the daemon's default --max-pixels, samples a request may cost (API.md); a 400 saying a smaller one lowers it
+// samples a request may cost: the daemon's default --max-pixels, until GET /api/stats gives its own; a 400
+// naming a smaller one (another node behind a balancer) lowers it
 const MAX_SAMPLES = 16777216;
 // the model list is asked for again after this while the daemon cannot give it
 const LIST_RETRY_MS = 2000;
@@ -154,6 +155,9 @@ class App {
         this.syncControls();
         this.showTab(this.state.tab);
         for (const m of await this.listModels()) this.models.set(m.name, m);
+        // frames are split by the daemon's own budget; a daemon that does not say keeps the default
+        const limits = await api.daemonLimits().catch(() => ({}));
+        if (limits.max_pixels > 0) this.maxSamples = limits.max_pixels;
         this.fillModels();
         if (!this.models.has(this.state.model)) {
             if (this.state.model) this.notify(`There is no model "${this.state.model}" on the daemon; showing another.`, 'error');
