@@ -89,12 +89,22 @@ void arbor_store_destroy(arbor_store *s);
  * '.': a name is a file name in the models folder, where a leading dot
  * would hide it from the folder's scan (and "." and ".." are not files). */
 bool arbor_model_name_valid(const char *name);
+/* A model file's extensions, in the order a name's files are preferred
+ * (arbor_model_file_rank). */
+#define ARBOR_MODEL_NEXTS 4
+extern const char *const arbor_model_exts[ARBOR_MODEL_NEXTS];
 /* The name of the model in a file named `file`: the name less its extension
  * (.obj, .ply, .obj.gz, .ply.gz, in that case), each character a model
  * name may not hold made '_' ("rose+vase.obj" is rose_vase). False when
  * file is no model file. The name may still be no valid one (a leading '.',
  * too long: then it is ""): check it with arbor_model_name_valid. */
 bool arbor_model_name_of_file(const char *file, char *name, size_t cap);
+/* Which of the files that make one model name is that model's (the lowest
+ * rank; among equal ranks, the first by strcmp): NAME.EXT by the order of
+ * arbor_model_exts (0..3), before any file whose name was changed to make
+ * it (4..7). -1 for a file that is no model file. The daemon's start and
+ * its checks of the folder at every request both choose by it. */
+int arbor_model_file_rank(const char *file);
 
 /* How a model is added. */
 enum {

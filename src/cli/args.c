@@ -63,12 +63,18 @@ bool cli_ends_with(const char *path, const char *ext)
     return n >= k && strcasecmp(path + n - k, ext) == 0;
 }
 
-bool cli_whole(const char *cmd, const char *opt, const char *s, double v)
+bool cli_u64(const char *cmd, const char *opt, const char *s, uint64_t hi, uint64_t *out)
 {
-    if (v == floor(v))
-        return true;
-    fprintf(stderr, "arbord %s: %s must be a whole number, not '%s'\n", cmd, opt, s);
-    return false;
+    char *end;
+    errno = 0;
+    unsigned long long v = strtoull(s, &end, 10);
+    if (errno != 0 || end == s || *end != '\0' || s[strspn(s, " \t")] == '-' || v > hi) {
+        fprintf(stderr, "arbord %s: %s must be a whole number in 0..%llu, not '%s'\n", cmd, opt,
+                (unsigned long long)hi, s);
+        return false;
+    }
+    *out = v;
+    return true;
 }
 
 bool cli_number(const char *cmd, const char *opt, const char *s, double lo, double hi, double *out)

@@ -8,6 +8,7 @@
 
 #include <cjson/cJSON.h>
 #include <stdbool.h>
+#include <stdint.h>
 
 int cmd_serve(int argc, char **argv);
 int cmd_render(int argc, char **argv);
@@ -45,7 +46,7 @@ bool cli_int(const char *cmd, const char *opt, const char *s, long lo, long hi, 
 bool cli_number(const char *cmd, const char *opt, const char *s, double lo, double hi, double *out);
 /* Whether path ends in ext (".png"), in any case. */
 bool cli_ends_with(const char *path, const char *ext);
-/* Whether v, parsed from s, is a whole number; says so on stderr when not. */
-bool cli_whole(const char *cmd, const char *opt, const char *s, double v);
+/* Parse a whole number in [0, hi], beyond an int's range; prints the error. */
+bool cli_u64(const char *cmd, const char *opt, const char *s, uint64_t hi, uint64_t *out);
 
 #endif

@@ -186,7 +186,10 @@ static bool check_one_args(const gen_args *a, arbor_gen_kind *kind)
         fprintf(stderr, "arbord gen: -o FILE.obj is required\n");
         return false;
     }
-    if (!cli_ends_with(a->out, ".obj")) { /* its material library goes beside it as FILE.mtl */
+    /* ".obj" in lower case, as the daemon's folder scan takes it, and as
+     * arbor_obj_mtl_path replaces it to name the material library beside */
+    size_t n = strlen(a->out);
+    if (n < 4 || strcmp(a->out + n - 4, ".obj") != 0) {
         fprintf(stderr, "arbord gen: -o %s: the model is written as OBJ, so its name must end in .obj\n", a->out);
         return false;
     }

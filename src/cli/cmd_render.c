@@ -67,8 +67,6 @@ static bool takes_value(const char *opt)
     return false;
 }
 
-/* PNG is the one format written: a name promising another (x.jpg) would
- * get PNG bytes under the wrong extension. */
 /* The flags that belong to one side only: the local renderer's threads and
  * counts, the remote one's strips. Returns -1 to go on, else 2. */
 static int check_remote_args(const render_args *a)
@@ -149,9 +147,7 @@ static int parse_args(int argc, char **argv, render_args *a)
         } else if (strcmp(opt, "--heat-scale") == 0) {
             ok = cli_number(cmd, opt, v, ARBOR_MIN_HEAT_SCALE, ARBOR_MAX_HEAT_SCALE, &a->heat_scale);
         } else if (strcmp(opt, "--seed") == 0) {
-            double seed;
-            ok = cli_number(cmd, opt, v, 0, (double)ARBOR_MAX_SEED, &seed) && cli_whole(cmd, opt, v, seed);
-            a->seed = (uint64_t)seed;
+            ok = cli_u64(cmd, opt, v, ARBOR_MAX_SEED, &a->seed);
         } else if (strcmp(opt, "--yaw") == 0) {
             ok = a->orbit = cli_number(cmd, opt, v, -3600.0, 3600.0, &a->yaw);
         } else if (strcmp(opt, "--pitch") == 0) {
@@ -167,6 +163,8 @@ static int parse_args(int argc, char **argv, render_args *a)
         usage(stderr);
         return 2;
     }
+    /* PNG is the one format written: a name promising another (x.jpg) would
+     * get PNG bytes under the wrong extension */
     if (!cli_ends_with(a->output, ".png")) {
         fprintf(stderr, "arbord render: -o %s: the image is written as PNG, so its name must end in .png\n",
                 a->output);

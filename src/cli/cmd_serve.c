@@ -263,9 +263,17 @@ static bool stop_requested(stop_flag *f)
 
 /* ---- loading ---- */
 
-static int compare_names(const void *a, const void *b)
+/* Model files in the order they are loaded: by the model name they make,
+ * and of one name's files, the one arbor_model_file_rank chooses first, as
+ * the daemon's checks of the folder choose it at every request (sync.c). */
+static int compare_model_files(const void *pa, const void *pb)
 {
-    return strcmp(*(char *const *)a, *(char *const *)b);
+    const char *a = *(char *const *)pa, *b = *(char *const *)pb;
+    char na[ARBOR_MODEL_NAME_MAX + 1], nb[ARBOR_MODEL_NAME_MAX + 1];
+    arbor_model_name_of_file(a, na, sizeof na);
+    arbor_model_name_of_file(b, nb, sizeof nb);
+    int by_name = strcmp(na, nb), by_rank = arbor_model_file_rank(a) - arbor_model_file_rank(b);
+    return by_name != 0 ? by_name : by_rank != 0 ? by_rank : strcmp(a, b);
 }
 
 typedef struct {
@@ -371,12 +379,22 @@ static void load_dir(arbor_server *server, arbor_store *store, const char *dir, 
             (files[n] = strdup(ent->d_name)) != NULL)
             n++;
     closedir(d);
-    qsort(files, (size_t)n, sizeof *files, compare_names);
+    qsort(files, (size_t)n, sizeof *files, compare_model_files);
+    char name[ARBOR_MODEL_NAME_MAX + 1], chosen[ARBOR_MODEL_NAME_MAX + 1] = "";
+    int chosen_at = -1; /* the file of the name before */
     for (int i = 0; i < n; i++) {
+        arbor_model_name_of_file(files[i], name, sizeof name);
+        if (chosen_at >= 0 && name[0] != '\0' && strcmp(name, chosen) == 0) {
+            fprintf(stderr, "arbord: skipping %s/%s: model %s is %s's\n", dir, files[i], name, files[chosen_at]);
+            continue;
+        }
         if (!stop_requested(stop))
             load_one(server, store, dir, files[i], p, max_upload);
-        free(files[i]);
+        snprintf(chosen, sizeof chosen, "%s", name);
+        chosen_at = i;
     }
+    for (int i = 0; i < n; i++)
+        free(files[i]);
 }
 
 /* ---- the daemon ---- */

@@ -24,10 +24,6 @@ int arbor_cpu_count(void)
     return n > 0 ? (int)n : 1;
 }
 
-/* FNV-1a over the fields that change when a file is replaced or rewritten.
- * Not the device: an NFS client numbers the mount when it mounts it, so
- * hosts sharing a folder (and one host after a remount) see other device
- * numbers for the same file, and its identity must not change with them. */
 bool arbor_real_path_inside(const char *real, const char *dir)
 {
     size_t n = strlen(dir);
@@ -36,6 +32,10 @@ bool arbor_real_path_inside(const char *real, const char *dir)
     return strncmp(real, dir, n) == 0 && real[n] == '/';
 }
 
+/* FNV-1a over the fields that change when a file is replaced or rewritten.
+ * Not the device: an NFS client numbers the mount when it mounts it, so
+ * hosts sharing a folder (and one host after a remount) see other device
+ * numbers for the same file, and its identity must not change with them. */
 uint64_t arbor_file_stamp(const char *path)
 {
     struct stat st;

@@ -28,8 +28,6 @@
 #include "arbor/sys.h"
 #include "folder.h"
 
-const char *const folder_model_exts[FOLDER_NEXTS] = {".obj", ".ply", ".obj.gz", ".ply.gz"};
-
 /* Entries a record holds: an upload's parts (at most 16, models.c) and,
  * while a save runs, the earlier upload's files besides. */
 #define RECORD_MAX 40
@@ -53,8 +51,8 @@ static bool ends_with(const char *s, const char *suffix)
 
 bool folder_is_model_file(const char *file)
 {
-    for (int i = 0; i < FOLDER_NEXTS; i++)
-        if (ends_with(file, folder_model_exts[i]))
+    for (int i = 0; i < ARBOR_MODEL_NEXTS; i++)
+        if (ends_with(file, arbor_model_exts[i]))
             return true;
     return false;
 }
@@ -326,10 +324,10 @@ folder_result folder_save_upload(const char *dir, const char *name, const char *
                                  folder_admit_fn admit, void *admit_ctx, char *file, size_t cap, char *err,
                                  size_t errcap)
 {
-    const char *ext = folder_model_exts[0];
-    for (int i = 0; i < FOLDER_NEXTS; i++)
-        if (ends_with(model, folder_model_exts[i]))
-            ext = folder_model_exts[i];
+    const char *ext = arbor_model_exts[0];
+    for (int i = 0; i < ARBOR_MODEL_NEXTS; i++)
+        if (ends_with(model, arbor_model_exts[i]))
+            ext = arbor_model_exts[i];
     char final[NAME_MAX + 1];
     snprintf(final, sizeof final, "%s%s", name, ext);
     record before, now, pending;
@@ -364,9 +362,9 @@ folder_result folder_save_upload(const char *dir, const char *name, const char *
         close(dfd);
     }
     remove_own(dir, name, &before, &now);
-    for (int i = 0; i < FOLDER_NEXTS; i++)
-        if (strcmp(folder_model_exts[i], ext) != 0) {
-            snprintf(dst, sizeof dst, "%s/%s%s", dir, name, folder_model_exts[i]);
+    for (int i = 0; i < ARBOR_MODEL_NEXTS; i++)
+        if (strcmp(arbor_model_exts[i], ext) != 0) {
+            snprintf(dst, sizeof dst, "%s/%s%s", dir, name, arbor_model_exts[i]);
             unlink(dst); /* one model file per name */
         }
     return FOLDER_SAVED;

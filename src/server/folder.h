@@ -22,11 +22,9 @@
 #include <stdbool.h>
 #include <stddef.h>
 
-#define FOLDER_NEXTS 4
-/* A model file's extensions, the compressed ones after the plain. */
-extern const char *const folder_model_exts[FOLDER_NEXTS];
+#include "arbor/store.h"
 
-/* Whether a file name is a model file's: one of folder_model_exts, in any
+/* Whether a file name is a model file's: one of arbor_model_exts, in any
  * case. */
 bool folder_is_model_file(const char *file);
 /* Whether a file name is a material library's (.mtl, in any case). */

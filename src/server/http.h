@@ -29,7 +29,8 @@ typedef struct render_req render_req;
 typedef struct job_table job_table;
 typedef struct sync_load sync_load;
 typedef struct sync_bad sync_bad;
-typedef struct upload_job upload_job;
+typedef struct sync_odd sync_odd;
+typedef struct folder_task folder_task;
 
 
 struct arbor_server {
@@ -56,8 +57,9 @@ struct arbor_server {
     uint32_t inflight;              /* requests suspended, waiting for a worker */
     sync_load *loads;               /* models being loaded from the shared folder (sync.c) */
     sync_bad *bad;                  /* folder files that failed to load (sync.c) */
-    upload_job *uploads_waiting;    /* uploads queued behind the one loading (models.c) */
-    bool upload_running;
+    sync_odd *odd;                  /* the folder's files whose names were changed into model names (sync.c) */
+    folder_task *folder_waiting;    /* uploads and DELETEs queued behind the one running (models.c) */
+    bool folder_busy;               /* one is running */
     uint64_t next_request_id;
 
     pthread_t reaper;               /* cancels frames past --frame-timeout */
@@ -185,7 +187,7 @@ bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_
 arbor_model *sync_model(http_req *r, const char *name);
 bool sync_models(http_req *r);
 bool sync_exists(arbor_server *s, const char *name);
-void sync_forget(arbor_server *s); /* frees the record of files that failed to load */
+void sync_forget(arbor_server *s); /* frees the records of failed and of renamed files */
 
 /* server.c: frames and rays are refused (503) until the daemon is ready,
  * so that a load balancer passes them to a node that is; false with the

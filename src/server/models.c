@@ -238,16 +238,17 @@ bool models_post_data(http_req *r, const char *data, size_t size)
 
 /* ---- loading, on a worker ---- */
 
-struct upload_job {
+/* A change of the models folder: an upload or a DELETE of model `name`.
+ * They run one at a time, in the order they arrived (folder_line). */
+struct folder_task {
     arbor_server *srv;
     http_req *http;
+    void (*run)(folder_task *t); /* the change: answers t->http, which task_run then resumes */
     char name[ARBOR_MODEL_NAME_MAX + 1];
-    bool replace;
-    bool ran;             /* upload_run has handed the line on */
-    upload_job *next;     /* in srv->uploads_waiting */
+    bool replace;                /* an upload's ?replace */
+    bool ran;                    /* task_run has handed the line on */
+    folder_task *next;           /* in srv->folder_waiting */
 };
-
-static void upload_next(arbor_server *s);
 
 /* The path of the upload's model part. */
 static const char *path_of_part(const upload_parts *u, char *path, size_t cap)
@@ -358,7 +359,7 @@ static bool admit_upload(void *ctx, const char *file)
 /* Saves the loaded upload into the folder and adds it to the store, with
  * the folder's lock held: an upload or DELETE of the same name, through
  * this daemon or another, comes wholly before or after. Replies. */
-static void upload_publish(upload_job *j, arbor_mesh *mesh)
+static void upload_publish(folder_task *j, arbor_mesh *mesh)
 {
     http_req *r = j->http;
     arbor_server *s = r->srv;
@@ -451,10 +452,8 @@ static bool load_staged(upload_parts *u, const char *path, const arbor_server *s
     return arbor_load_model_capped(path, s->config.max_upload, mesh, err);
 }
 
-static void upload_run(void *ctx, uint32_t task)
+static void upload_run(folder_task *j)
 {
-    (void)task;
-    upload_job *j = ctx;
     http_req *r = j->http;
     arbor_server *s = r->srv;
     upload_parts *u = r->parts;
@@ -486,59 +485,82 @@ static void upload_run(void *ctx, uint32_t task)
     }
     arbor_mesh_free(&mesh);
     models_parts_free(r);
-    /* the next upload starts while r still holds the server up: once r is
+}
+
+/* The changes of the folder run one at a time, in the order they arrived:
+ * an upload parses its whole file into memory (eight at once took 1.4 GB
+ * of a hostile gzip's faces), and each change takes a worker from the
+ * frames, for as long as FOLDER_LOCK_WAIT_MS when another holds the
+ * folder's lock. folder_line queues a task, or starts it when none runs;
+ * line_next starts the next, from the end of task_run, or from the release
+ * of a task that never ran (http_queue releases it before it resumes the
+ * request). */
+static void line_next(arbor_server *s);
+
+static void task_run(void *ctx, uint32_t task)
+{
+    (void)task;
+    folder_task *t = ctx;
+    http_req *r = t->http;
+    t->run(t);
+    /* the next starts while r still holds the server up: once r is
      * resumed, a stopping daemon may free it */
-    j->ran = true;
-    upload_next(s);
+    t->ran = true;
+    line_next(t->srv);
     http_resume(r);
 }
 
-/* Uploads are loaded one at a time, in the order they arrived: each parses
- * its whole file into memory (eight at once took 1.4 GB of a hostile
- * gzip's faces), and each takes a worker from the frames. upload_line
- * queues a job, or starts it when none runs; upload_next starts the next,
- * from the end of upload_run, or from the release of a job that never ran
- * (http_queue releases it before it resumes the request). */
-static void upload_free(void *ctx)
+static void task_free(void *ctx)
 {
-    upload_job *j = ctx;
-    arbor_server *s = j->srv;
-    bool ran = j->ran;
-    free(j);
+    folder_task *t = ctx;
+    arbor_server *s = t->srv;
+    bool ran = t->ran;
+    free(t);
     if (!ran)
-        upload_next(s);
+        line_next(s);
 }
 
-static void upload_next(arbor_server *s)
+static void line_next(arbor_server *s)
 {
     pthread_mutex_lock(&s->lock);
-    upload_job *next = s->uploads_waiting;
+    folder_task *next = s->folder_waiting;
     if (next != NULL)
-        s->uploads_waiting = next->next;
+        s->folder_waiting = next->next;
     else
-        s->upload_running = false;
+        s->folder_busy = false;
     pthread_mutex_unlock(&s->lock);
     if (next != NULL)
-        http_queue(next->http, upload_run, upload_free, next);
+        http_queue(next->http, task_run, task_free, next);
 }
 
-static void upload_line(http_req *r, upload_job *j)
+/* Suspends r and runs run for it in the line; 507 when out of memory. */
+static void folder_line(http_req *r, void (*run)(folder_task *t), const char *name, bool replace)
 {
     arbor_server *s = r->srv;
+    folder_task *t = calloc(1, sizeof *t);
+    if (t == NULL) {
+        http_reply_error(r, 507, "insufficient_memory", "out of memory");
+        return;
+    }
+    t->srv = s;
+    t->http = r;
+    t->run = run;
+    snprintf(t->name, sizeof t->name, "%s", name);
+    t->replace = replace;
     http_suspend(r);
     pthread_mutex_lock(&s->lock);
-    bool now = !s->upload_running;
+    bool now = !s->folder_busy;
     if (now) {
-        s->upload_running = true;
+        s->folder_busy = true;
     } else {
-        upload_job **end = &s->uploads_waiting;
+        folder_task **end = &s->folder_waiting;
         while (*end != NULL)
             end = &(*end)->next;
-        *end = j;
+        *end = t;
     }
     pthread_mutex_unlock(&s->lock);
     if (now)
-        http_queue(r, upload_run, upload_free, j);
+        http_queue(r, task_run, task_free, t);
 }
 
 static void upload(http_req *r, const char *name)
@@ -570,24 +592,10 @@ static void upload(http_req *r, const char *name)
         http_reply_error(r, 400, "bad_request", "the upload has no .obj, .ply, .obj.gz or .ply.gz file part");
         return;
     }
-    upload_job *j = calloc(1, sizeof *j);
-    if (j == NULL) {
-        http_reply_error(r, 507, "insufficient_memory", "out of memory");
-        return;
-    }
-    j->srv = r->srv;
-    j->http = r;
-    snprintf(j->name, sizeof j->name, "%s", name);
-    j->replace = replace;
-    upload_line(r, j);
+    folder_line(r, upload_run, name, replace);
 }
 
 /* ---- the routes ---- */
-
-typedef struct {
-    http_req *http;
-    char name[ARBOR_MODEL_NAME_MAX + 1];
-} delete_job;
 
 /* Unloads the model and removes what its upload wrote, with the folder's
  * lock held (folder.h). A read-only folder holds no upload's files to
@@ -595,10 +603,8 @@ typedef struct {
  * written, a lock that cannot be taken is a 507 and the model stays: the
  * files left behind would load it again at the next request. A model of
  * the folder this daemon has not loaded (or cannot load) goes all the same. */
-static void delete_run(void *ctx, uint32_t task)
+static void delete_run(folder_task *j)
 {
-    (void)task;
-    delete_job *j = ctx;
     http_req *r = j->http;
     const char *dir = r->srv->config.upload_dir;
     char why[PATH_MAX + 128];
@@ -626,7 +632,6 @@ static void delete_run(void *ctx, uint32_t task)
     }
     if (locked)
         folder_lock_drop(lock);
-    http_resume(r);
 }
 
 static void delete_model(http_req *r, const char *name)
@@ -639,14 +644,7 @@ static void delete_model(http_req *r, const char *name)
         http_reply_error(r, 404, "not_found", "no model named '%s'", name);
         return;
     }
-    delete_job *j = calloc(1, sizeof *j);
-    if (j == NULL) {
-        http_reply_error(r, 507, "insufficient_memory", "out of memory");
-        return;
-    }
-    j->http = r;
-    snprintf(j->name, sizeof j->name, "%s", name);
-    http_on_pool(r, delete_run, free, j);
+    folder_line(r, delete_run, name, false);
 }
 
 static void get_model(http_req *r, const char *name)
@@ -680,7 +678,9 @@ void route_models(http_req *r, const char *name, const char *rest)
 {
     /* the boxes read their own parameters; an upload takes ?replace */
     bool uploading = http_method_is(r, "PUT") || http_method_is(r, "POST");
-    bool allowed = uploading || http_method_is(r, "GET") || http_method_is(r, "HEAD") || http_method_is(r, "DELETE");
+    bool allowed = r->route == ROUTE_TREES ? http_method_is(r, "POST")
+                                           : uploading || http_method_is(r, "GET") || http_method_is(r, "HEAD") ||
+                                                 http_method_is(r, "DELETE"); /* else a 405 below */
     if (allowed && r->route != ROUTE_BOXES && !http_args_known(r, uploading && rest[0] == '\0' ? "replace" : ""))
         return;
     if (rest[0] != '\0') {

@@ -257,7 +257,7 @@ bool http_args_known(http_req *r, const char *known)
     MHD_get_connection_values(r->conn, MHD_GET_ARGUMENT_KIND, arg_known, &c);
     if (c.unknown != NULL && known[0] == '\0')
         http_reply_error(r, 400, "bad_request", "unknown query parameter '%s': %s %.*s takes none", c.unknown,
-                         r->method, (int)strcspn(r->url, "?"), r->url);
+                         r->method, (int)strcspn(r->url, "?"), r->url); /* the path: r->url keeps the query */
     else if (c.unknown != NULL)
         http_reply_error(r, 400, "bad_request", "unknown query parameter '%s' (%s)", c.unknown, known);
     else if (c.twice != NULL)

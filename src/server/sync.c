@@ -24,8 +24,8 @@
  *
  * The checks are stat(2) calls on the polling thread (metadata only: no
  * file is read there; a name with '_', which may stand for a file's odd
- * characters, may also read the folder's entries); reading and parsing
- * happen on the pool.
+ * characters, also stats the folder, whose entries are read again only when
+ * it has changed: sync_odd); reading and parsing happen on the pool.
  */
 #include <dirent.h>
 #include <limits.h>
@@ -33,6 +33,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <time.h>
 
 #include "arbor/load.h"
 #include "arbor/sys.h"
@@ -80,29 +82,118 @@ static bool entry_name(const char *file, char *name, size_t cap)
     return file[0] != '.' && arbor_model_name_of_file(file, name, cap) && arbor_model_name_valid(name);
 }
 
+/* The shared folder's files whose names were changed to make model names
+ * ("rose+vase.obj"), as read at one version of the folder (its mtime): read
+ * again only when the folder has changed, so that a request for a name with
+ * no NAME.EXT costs a stat of the folder, not a read of all its entries. */
+struct sync_odd {
+    int64_t mtime_ns;         /* the folder's when read */
+    int64_t read_ns;          /* the clock's when read (CLOCK_REALTIME, as mtime) */
+    uint32_t n;
+    char (*files)[NAME_MAX + 1];
+};
+
+static int64_t ns_of(struct timespec t)
+{
+    return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
+}
+
+/* The folder's renamed files now: NULL when it cannot be read or memory
+ * runs out (the caller then finds none). */
+static sync_odd *odd_read(const char *dir, int64_t mtime_ns)
+{
+    sync_odd *o = calloc(1, sizeof *o);
+    DIR *d = o != NULL ? opendir(dir) : NULL;
+    struct timespec now;
+    clock_gettime(CLOCK_REALTIME, &now);
+    struct dirent *ent;
+    char name[ARBOR_MODEL_NAME_MAX + 1];
+    uint32_t cap = 0;
+    bool ok = d != NULL;
+    while (ok && (ent = readdir(d)) != NULL) {
+        if (arbor_model_file_rank(ent->d_name) < ARBOR_MODEL_NEXTS || !entry_name(ent->d_name, name, sizeof name))
+            continue;
+        if (o->n == cap) {
+            cap = cap ? 2 * cap : 16;
+            void *grown = realloc(o->files, cap * sizeof *o->files);
+            ok = grown != NULL;
+            if (ok)
+                o->files = grown;
+        }
+        if (ok)
+            snprintf(o->files[o->n++], sizeof o->files[0], "%s", ent->d_name);
+    }
+    if (d != NULL)
+        closedir(d);
+    if (!ok && o != NULL) {
+        free(o->files);
+        free(o);
+        return NULL;
+    }
+    o->mtime_ns = mtime_ns;
+    o->read_ns = ns_of(now);
+    return o;
+}
+
+static void odd_free(sync_odd *o)
+{
+    if (o != NULL)
+        free(o->files);
+    free(o);
+}
+
+/* The renamed file of model `name` (the lowest arbor_model_file_rank, then
+ * the first by name) into first; false when there is none. */
+static bool odd_file(arbor_server *s, const char *dir, const char *name, char *first, size_t cap)
+{
+    struct stat st;
+    if (stat(dir, &st) != 0)
+        return false;
+    int64_t mtime = ns_of(st.st_mtim);
+    pthread_mutex_lock(&s->lock);
+    /* a read within a second of the folder's last change may have missed
+     * an entry made in the same tick of a coarse clock: read again */
+    bool current = s->odd != NULL && s->odd->mtime_ns == mtime && s->odd->read_ns - mtime > 1000000000;
+    pthread_mutex_unlock(&s->lock);
+    if (!current) {
+        sync_odd *fresh = odd_read(dir, mtime);
+        pthread_mutex_lock(&s->lock);
+        odd_free(s->odd);
+        s->odd = fresh;
+        pthread_mutex_unlock(&s->lock);
+    }
+    char of[ARBOR_MODEL_NAME_MAX + 1];
+    int best = -1;
+    first[0] = '\0';
+    pthread_mutex_lock(&s->lock);
+    for (uint32_t i = 0; s->odd != NULL && i < s->odd->n; i++) {
+        const char *file = s->odd->files[i];
+        int rank = arbor_model_file_rank(file);
+        if (entry_name(file, of, sizeof of) && strcmp(of, name) == 0 &&
+            (best < 0 || rank < best || (rank == best && strcmp(file, first) < 0))) {
+            best = rank;
+            snprintf(first, cap, "%s", file);
+        }
+    }
+    pthread_mutex_unlock(&s->lock);
+    return best >= 0;
+}
+
 /* The file of model `name` in the shared folder and its stamp, if any:
- * NAME.EXT, or else the first by name of the files whose names make that
- * model name, as the daemon named them when it started ("rose+vase.obj" for
- * rose_vase). Such a name has a '_' for each character it changed, so other
- * names take no scan of the folder. */
-static bool folder_file(const arbor_server *s, const char *name, char *path, size_t cap, uint64_t *stamp)
+ * NAME.EXT, by the order of arbor_model_exts, or else the file whose name
+ * was changed to make that name, as the daemon chose at start
+ * (arbor_model_file_rank: "rose+vase.obj" for rose_vase). Such a name has a
+ * '_' for each character changed, so other names look for none. */
+static bool folder_file(arbor_server *s, const char *name, char *path, size_t cap, uint64_t *stamp)
 {
     const char *dir = s->config.upload_dir;
-    for (size_t i = 0; dir != NULL && i < FOLDER_NEXTS; i++) {
-        snprintf(path, cap, "%s/%s%s", dir, name, folder_model_exts[i]);
+    for (size_t i = 0; dir != NULL && i < ARBOR_MODEL_NEXTS; i++) {
+        snprintf(path, cap, "%s/%s%s", dir, name, arbor_model_exts[i]);
         if ((*stamp = arbor_file_stamp(path)) != 0)
             return true;
     }
-    DIR *d = dir != NULL && strchr(name, '_') != NULL ? opendir(dir) : NULL;
-    struct dirent *ent;
-    char first[NAME_MAX + 1] = "", of[ARBOR_MODEL_NAME_MAX + 1];
-    while (d != NULL && (ent = readdir(d)) != NULL)
-        if (entry_name(ent->d_name, of, sizeof of) && strcmp(of, name) == 0 &&
-            (first[0] == '\0' || strcmp(ent->d_name, first) < 0))
-            snprintf(first, sizeof first, "%s", ent->d_name);
-    if (d != NULL)
-        closedir(d);
-    if (first[0] == '\0')
+    char first[NAME_MAX + 1];
+    if (dir == NULL || strchr(name, '_') == NULL || !odd_file(s, dir, name, first, sizeof first))
         return false;
     snprintf(path, cap, "%s/%s", dir, first);
     return (*stamp = arbor_file_stamp(path)) != 0;
@@ -112,7 +203,7 @@ static bool folder_file(const arbor_server *s, const char *name, char *path, siz
  * none). For SYNC_LOAD, path and *stamp are the file to read. The shared
  * folder's file comes first; a model read from another --models folder is
  * compared with its own file. */
-static sync_state compare(const arbor_server *s, const char *name, arbor_model *m, char *path, size_t cap,
+static sync_state compare(arbor_server *s, const char *name, arbor_model *m, char *path, size_t cap,
                           uint64_t *stamp)
 {
     uint64_t known = m != NULL ? arbor_model_stamp(m) : 0;
@@ -193,6 +284,8 @@ static bool bad_known(arbor_server *s, const char *name, uint64_t stamp, arbor_e
 
 void sync_forget(arbor_server *s)
 {
+    odd_free(s->odd);
+    s->odd = NULL;
     while (s->bad != NULL) {
         sync_bad *b = s->bad;
         s->bad = b->next;

@@ -137,22 +137,43 @@ bool arbor_model_name_valid(const char *name)
     return true;
 }
 
+const char *const arbor_model_exts[ARBOR_MODEL_NEXTS] = {".obj", ".ply", ".obj.gz", ".ply.gz"};
+
+/* The index in arbor_model_exts of file's extension, -1 for none; the
+ * compressed ones tried first: "a.obj.gz" is a, not "a.obj". */
+static int model_ext(const char *file)
+{
+    size_t n = strlen(file);
+    for (int i = ARBOR_MODEL_NEXTS; i-- > 0;) {
+        size_t k = strlen(arbor_model_exts[i]);
+        if (n > k && strcmp(file + n - k, arbor_model_exts[i]) == 0)
+            return i;
+    }
+    return -1;
+}
+
 bool arbor_model_name_of_file(const char *file, char *name, size_t cap)
 {
-    /* the compressed first: "a.obj.gz" is a, not "a.obj" */
-    static const char *const exts[] = {".obj.gz", ".ply.gz", ".obj", ".ply"};
-    size_t n = strlen(file);
-    for (size_t i = 0; i < sizeof exts / sizeof exts[0]; i++) {
-        size_t k = strlen(exts[i]);
-        if (n <= k || strcmp(file + n - k, exts[i]) != 0)
-            continue;
-        size_t len = n - k < cap ? n - k : 0;
-        for (size_t j = 0; j < len; j++)
-            name[j] = name_char(file[j]) ? file[j] : '_';
-        name[len] = '\0';
-        return true;
-    }
-    return false;
+    int ext = model_ext(file);
+    if (ext < 0)
+        return false;
+    size_t stem = strlen(file) - strlen(arbor_model_exts[ext]), len = stem < cap ? stem : 0;
+    for (size_t j = 0; j < len; j++)
+        name[j] = name_char(file[j]) ? file[j] : '_';
+    name[len] = '\0';
+    return true;
+}
+
+int arbor_model_file_rank(const char *file)
+{
+    int ext = model_ext(file);
+    if (ext < 0)
+        return -1;
+    size_t stem = strlen(file) - strlen(arbor_model_exts[ext]);
+    for (size_t j = 0; j < stem; j++)
+        if (!name_char(file[j]))
+            return ext + ARBOR_MODEL_NEXTS;
+    return ext;
 }
 
 arbor_store *arbor_store_create(const arbor_store_config *c, arbor_err *e)

@@ -92,6 +92,7 @@ one_value_options_refuse_a_second() {
 # scale a frame prints gives that frame again when passed back.
 ranges_are_the_apis() {
     usage_fails gen sphere -o "$tmp/never.txt" && grep -q "must end in .obj" "$tmp/usage.err" &&
+        usage_fails gen sphere -o "$tmp/never.OBJ" &&
         usage_fails render --url 127.0.0.1:9 --model cornell -o "$tmp/never.png" &&
         grep -q "http://" "$tmp/usage.err" &&
         usage_fails render --model "$model" --seed 1.5 -o "$tmp/never.png" &&

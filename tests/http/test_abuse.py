@@ -499,8 +499,8 @@ def test_abuse_folder_mounted_again_under_another_device():
 def test_abuse_folder_lock_held_by_another():
     """Another process holds the models folder's lock and does not let go (a stuck daemon, an operator's
     flock): uploads and DELETEs wait a bounded time and answer 503 busy with Retry-After, the folder
-    and the store as they were, and a frame asked for meanwhile renders; once the lock is free, the
-    DELETE goes through."""
+    and the store as they were. They wait in one line, so at most one worker waits on the lock: a frame
+    asked for meanwhile is answered before any of them; once the lock is free, the DELETE goes through."""
     import fcntl
     mnt = tempfile.mkdtemp(prefix="arbor-lock-")
     d = Daemon(models_dir=mnt, args=["--threads", "2"], name="held-lock daemon")
@@ -509,22 +509,25 @@ def test_abuse_folder_lock_held_by_another():
         before = sorted(os.listdir(mnt))
         with open(os.path.join(mnt, ".arbord.lock"), "r+") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
-            answers = {}
+            answers, order = {}, []
 
             def ask(key, method, path, **kw):
                 answers[key] = d.req(method, path, timeout=60, **kw)
+                order.append(key)
 
-            # two DELETEs and an upload: every worker of --threads 2, and more, waits on the lock
+            # two DELETEs and an upload, more than the workers of --threads 2
             asks = [threading.Thread(target=ask, args=("delete%d" % i, "DELETE", "/api/models/first")) for i in range(2)]
             asks.append(threading.Thread(target=ask, args=("upload", "PUT", "/api/models/second"),
                                          kwargs={"body": b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"}))
             for t in asks:
                 t.start()
-            frame = d.post("/api/render", {"model": "first", "width": 8, "height": 8}, timeout=60)
-            eq(frame.status, 200, "a frame while the folder's lock is held: %s" % frame.body[:200])
+            time.sleep(0.5)  # let them reach the daemon first (the order below holds whatever the delay)
+            ask("frame", "POST", "/api/render", js={"model": "first", "width": 8, "height": 8})
+            eq(answers["frame"].status, 200, "a frame while the folder's lock is held: %s" % answers["frame"].body[:200])
             for t in asks:
                 t.join()
-            for key in sorted(answers):
+            eq(order[0], "frame", "answered first (each change waits 5 s on the lock, in one line)")
+            for key in sorted(k for k in answers if k != "frame"):
                 expect_error(answers[key], 503, "busy")
                 eq(answers[key].header("Retry-After"), "1", "Retry-After of the refused %s" % key)
             eq(sorted(os.listdir(mnt)), before, "files after the refused changes")

@@ -408,6 +408,16 @@ def test_files_whose_names_are_changed_are_models_at_every_request():
         d.stop_clean()
     finally:
         d.cleanup()
+    # at start the same file is chosen as at every request: no load of the other, no reload after
+    d = Daemon([("x+y.obj", our("cornell.obj")), ("x_y.obj", our("sphere.obj"))], ["--threads", "1"], copy=True,
+               name="odd-and-plain daemon")
+    try:
+        first = d.model("x_y")
+        check(first["file"].endswith("/x_y.obj"), "x_y at start is %s, not x_y.obj" % first["file"])
+        eq(d.model("x_y")["version"], first["version"], "x_y's version after a request (loaded again?)")
+        d.stop_clean()
+    finally:
+        d.cleanup()
 
 
 def _folder(d):
