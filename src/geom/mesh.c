@@ -150,9 +150,14 @@ int arbor_mesh_find_material(const arbor_mesh *m, const char *name)
 bool arbor_mesh_add_missing_library(arbor_mesh *m, const char *name, size_t len, arbor_err *e)
 {
     char **grown = realloc(m->missing_libraries, (m->nmissing_libraries + 1) * sizeof *grown);
-    char *s = grown != NULL ? strndup(name, len) : NULL;
+    /* not strndup: name is a word inside the file's text, not a string (ASan's strndup reads past len) */
+    char *s = grown != NULL ? malloc(len + 1) : NULL;
     if (grown != NULL)
         m->missing_libraries = grown;
+    if (s != NULL) {
+        memcpy(s, name, len);
+        s[len] = '\0';
+    }
     if (s == NULL)
         return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory noting material library '%.*s'", (int)(len < 64 ? len : 64),
                           name);
