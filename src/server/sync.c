@@ -90,7 +90,10 @@ struct sync_odd {
     int64_t mtime_ns;         /* the folder's when read */
     int64_t read_ns;          /* the clock's when read (CLOCK_REALTIME, as mtime) */
     uint32_t n;
-    char (*files)[NAME_MAX + 1];
+    struct {
+        char file[NAME_MAX + 1];
+        char name[ARBOR_MODEL_NAME_MAX + 1]; /* the model name it makes */
+    } *files;
 };
 
 static int64_t ns_of(struct timespec t)
@@ -120,8 +123,10 @@ static sync_odd *odd_read(const char *dir, int64_t mtime_ns)
             if (ok)
                 o->files = grown;
         }
-        if (ok)
-            snprintf(o->files[o->n++], sizeof o->files[0], "%s", ent->d_name);
+        if (ok) {
+            snprintf(o->files[o->n].file, sizeof o->files[0].file, "%s", ent->d_name);
+            snprintf(o->files[o->n++].name, sizeof o->files[0].name, "%s", name);
+        }
     }
     if (d != NULL)
         closedir(d);
@@ -162,14 +167,13 @@ static bool odd_file(arbor_server *s, const char *dir, const char *name, char *f
         s->odd = fresh;
         pthread_mutex_unlock(&s->lock);
     }
-    char of[ARBOR_MODEL_NAME_MAX + 1];
     int best = -1;
     first[0] = '\0';
     pthread_mutex_lock(&s->lock);
     for (uint32_t i = 0; s->odd != NULL && i < s->odd->n; i++) {
-        const char *file = s->odd->files[i];
+        const char *file = s->odd->files[i].file;
         int rank = arbor_model_file_rank(file);
-        if (entry_name(file, of, sizeof of) && strcmp(of, name) == 0 &&
+        if (strcmp(s->odd->files[i].name, name) == 0 &&
             (best < 0 || rank < best || (rank == best && strcmp(file, first) < 0))) {
             best = rank;
             snprintf(first, cap, "%s", file);
