@@ -97,7 +97,9 @@ bool arbor_mesh_finish(arbor_mesh *m, arbor_err *e);
 
 /* The default material's values (grey 0.7 Lambert, no specular). */
 void arbor_material_default(arbor_material *mat, const char *name);
-/* True for materials the renderer treats as mirrors (illum 3 or 5, or Ks >= 0.5). */
+/* True for materials the renderer treats as mirrors: MTL illum 3 or 5 (the
+ * ray-traced reflection models). Ks alone is a highlight's colour (illum 2),
+ * as exporters write it for every material (Blender's 0.5 grey). */
 bool arbor_material_is_mirror(const arbor_material *mat);
 
 static inline void arbor_mesh_tri(const arbor_mesh *m, uint32_t t, arbor_vec3 *a, arbor_vec3 *b, arbor_vec3 *c)

@@ -13,6 +13,8 @@
  *            light at eye + 0.5 d camera_up (PROTOCOL.md's light for the
  *            protocol view; for other views it moves with the camera), hard
  *            shadows, 15% ambient so shadows are not black, no falloff;
+ *            materials of MTL illum 2 add a Blinn-Phong highlight of Ks
+ *            with exponent Ns;
  *            mirror materials (arbor_material_is_mirror) reflect, tinted by
  *            Ks (0.9 when Ks is black); glass (below) reflects and refracts;
  *            each reflection or refraction is a bounce, up to max_bounces,

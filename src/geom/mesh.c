@@ -127,7 +127,7 @@ void arbor_material_default(arbor_material *mat, const char *name)
 
 bool arbor_material_is_mirror(const arbor_material *mat)
 {
-    return mat->illum == 3 || mat->illum == 5 || (mat->ks.x >= 0.5f && mat->ks.y >= 0.5f && mat->ks.z >= 0.5f);
+    return mat->illum == 3 || mat->illum == 5;
 }
 
 bool arbor_mesh_add_material(arbor_mesh *m, const char *name, uint32_t *index, arbor_err *e)

@@ -273,14 +273,23 @@ static float light_transmittance(const arbor_frame *f, arbor_vec3 origin, tile_t
     return 0.0f;
 }
 
-/* Kd-weighted light arriving at s (linear), shaded with normal n: ambient
- * plus the Lambert term of the point light, times what reaches s of it. */
-static arbor_vec3 lambert(const arbor_frame *f, const sample_surface *s, arbor_vec3 n, const arbor_material *mat,
-                          tile_tally *t)
+/* Light leaving s toward the eye (linear), shaded with normal n, for a ray
+ * that came along dir: Kd times ambient plus the Lambert term of the point
+ * light, and for MTL illum 2 ("highlight on") Ks times a Blinn-Phong
+ * highlight of exponent Ns; the light's terms times what reaches s of it. */
+static arbor_vec3 direct_light(const arbor_frame *f, const sample_surface *s, arbor_vec3 n, arbor_vec3 dir,
+                               const arbor_material *mat, tile_tally *t)
 {
-    float cosine = vec3_dot(n, vec3_normalize(vec3_sub(f->light, s->origin)));
-    float direct = cosine > 0.0f ? cosine * light_transmittance(f, s->origin, t) : 0.0f;
-    return vec3_scale(mat->kd, AMBIENT + (1.0f - AMBIENT) * direct);
+    arbor_vec3 to_light = vec3_normalize(vec3_sub(f->light, s->origin));
+    float cosine = vec3_dot(n, to_light);
+    float reaching = cosine > 0.0f ? light_transmittance(f, s->origin, t) : 0.0f;
+    arbor_vec3 c = vec3_scale(mat->kd, AMBIENT + (1.0f - AMBIENT) * (cosine * reaching));
+    if (mat->illum == 2 && reaching > 0.0f) {
+        float nh = vec3_dot(n, vec3_normalize(vec3_sub(to_light, vec3_normalize(dir))));
+        if (nh > 0.0f)
+            c = vec3_add(c, vec3_scale(mat->ks, powf(nh, mat->ns) * reaching));
+    }
+    return c;
 }
 
 static arbor_vec3 mirror_tint(const arbor_material *mat)
@@ -321,7 +330,7 @@ static bool shade_glass(const arbor_frame *f, shaded_path *q, const arbor_hit *h
 {
     float d = clamp01(mat->d);
     if (d > 0.0f) {
-        arbor_vec3 opaque = vec3_add(mat->ke, lambert(f, s, shading_normal(f, h, s), mat, t));
+        arbor_vec3 opaque = vec3_add(mat->ke, direct_light(f, s, shading_normal(f, h, s), q->r.d, mat, t));
         *sum = vec3_add(*sum, vec3_mul(q->weight, vec3_scale(opaque, d)));
     }
     arbor_vec3 dir = vec3_normalize(q->r.d);
@@ -373,7 +382,7 @@ static arbor_vec3 shade_shaded(const arbor_frame *f, arbor_ray r, tile_tally *t)
                 q = path_from(s.origin, d, vec3_mul(q.weight, mirror_tint(mat)), q.bounce + 1);
                 goes_on = true;
             } else {
-                arbor_vec3 opaque = vec3_add(mat->ke, lambert(f, &s, shading_normal(f, &h, &s), mat, t));
+                arbor_vec3 opaque = vec3_add(mat->ke, direct_light(f, &s, shading_normal(f, &h, &s), q.r.d, mat, t));
                 sum = vec3_add(sum, vec3_mul(q.weight, opaque));
             }
         }

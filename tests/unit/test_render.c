@@ -172,6 +172,54 @@ static void test_quad_shaded_centre_is_lambert(void)
     arbor_mesh_free(&m);
 }
 
+/* MTL Ks is a highlight's colour, not a mirror's (exporters such as
+ * Blender write Ks 0.5 on every material): under illum 2 every pixel of the
+ * lit quad is Kd's Lambert plus Ks times the Blinn-Phong term (n.h)^Ns,
+ * computed here per pixel centre in double; under illum 1 Lambert alone. */
+static void test_ks_is_a_highlight_under_illum_2(void)
+{
+    arbor_mesh m;
+    make_quad(&m, 1);
+    m.mats[1].kd = vec3(0.4f, 0.3f, 0.2f);
+    m.mats[1].ks = vec3(0.6f, 0.6f, 0.5f);
+    m.mats[1].ns = 8.0f;
+    arbor_accel *a = build(&m, ARBOR_ACCEL_BVH);
+    arbor_render_params p;
+    quad_params(&p, &m, ARBOR_MODE_SHADED);
+    arbor_vec3 light = vec3_add(p.camera.eye, vec3_scale(p.camera.up, 0.5f * sqrtf(800.0f)));
+    for (int illum = 1; illum <= 2; illum++) {
+        m.mats[1].illum = illum;
+        TEST_ASSERT_FALSE(arbor_material_is_mirror(&m.mats[1]));
+        arbor_frame *f = render_ok(pool4, a, &p);
+        const arbor_frame_result *r = arbor_frame_result_of(f);
+        int brightened = 0;
+        for (int y = 0; y < r->height; y++)
+            for (int x = 0; x < r->width; x++) {
+                arbor_ray ray = arbor_camera_ray(&p.camera, (float)x + 0.5f, (float)y + 0.5f);
+                double dl = sqrt((double)ray.d.x * ray.d.x + (double)ray.d.y * ray.d.y + (double)ray.d.z * ray.d.z);
+                double t = -ray.o.z / ray.d.z, v[3] = {-ray.d.x / dl, -ray.d.y / dl, -ray.d.z / dl};
+                double l[3] = {light.x - (ray.o.x + t * ray.d.x), light.y - (ray.o.y + t * ray.d.y), light.z};
+                double ll = sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
+                double h[3] = {l[0] / ll + v[0], l[1] / ll + v[1], l[2] / ll + v[2]};
+                double highlight = illum == 2 ? pow(h[2] / sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]), 8.0) : 0.0;
+                const float kd[3] = {0.4f, 0.3f, 0.2f}, ks[3] = {0.6f, 0.6f, 0.5f};
+                const uint8_t *px = r->rgb + 3 * (y * r->width + x);
+                for (int c = 0; c < 3; c++)
+                    TEST_ASSERT_INT_WITHIN(1, shaded_byte(kd[c] * (0.15 + 0.85 * l[2] / ll) + ks[c] * highlight), px[c]);
+                brightened += highlight * 0.5 > 0.05;
+            }
+        TEST_ASSERT_EQUAL_UINT64(2 * 64 * 48, r->rays); /* primary + shadow ray each, no reflection */
+        TEST_ASSERT_TRUE(illum == 1 || brightened > 64 * 48 / 2);
+        arbor_frame_release(f);
+    }
+    for (int illum = 3; illum <= 5; illum += 2) {
+        m.mats[1].illum = illum;
+        TEST_ASSERT_TRUE(arbor_material_is_mirror(&m.mats[1]));
+    }
+    arbor_accel_free(a);
+    arbor_mesh_free(&m);
+}
+
 /* A mirror facing the camera sends every ray back past the eye into the
  * background, tinted 0.9 (Ks is black): the background's sRGB bytes are
  * decoded to linear light, dimmed, and encoded again. */
@@ -1091,6 +1139,7 @@ int main(void)
     UNITY_BEGIN();
     RUN_TEST(test_quad_normals_fill_the_view);
     RUN_TEST(test_quad_shaded_centre_is_lambert);
+    RUN_TEST(test_ks_is_a_highlight_under_illum_2);
     RUN_TEST(test_mirror_reflects_the_background);
     RUN_TEST(test_ao_of_an_open_plane_is_white);
     RUN_TEST(test_offset_origin_leaves_the_plane);
