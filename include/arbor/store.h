@@ -94,7 +94,7 @@ bool arbor_model_name_valid(const char *name);
 #define ARBOR_MODEL_NEXTS 4
 extern const char *const arbor_model_exts[ARBOR_MODEL_NEXTS];
 /* The name of the model in a file named `file`: the name less its extension
- * (.obj, .ply, .obj.gz, .ply.gz, in that case), each character a model
+ * (.obj, .ply, .obj.gz, .ply.gz, in any case), each character a model
  * name may not hold made '_' ("rose+vase.obj" is rose_vase). False when
  * file is no model file. The name may still be no valid one (a leading '.',
  * too long: then it is ""): check it with arbor_model_name_valid. */
@@ -102,7 +102,8 @@ bool arbor_model_name_of_file(const char *file, char *name, size_t cap);
 /* Which of the files that make one model name is that model's (the lowest
  * rank; among equal ranks, the first by strcmp): NAME.EXT by the order of
  * arbor_model_exts (0..3), before any file whose name was changed to make
- * it (4..7). -1 for a file that is no model file. The daemon's start and
+ * it or whose extension is not in lower case (4..7). -1 for a file that is
+ * no model file. The daemon's start and
  * its checks of the folder at every request both choose by it. */
 int arbor_model_file_rank(const char *file);
 
@@ -125,9 +126,9 @@ bool arbor_store_remove_model(arbor_store *s, const char *name, arbor_err *e);
 /* A reference to the named model, or NULL. */
 arbor_model *arbor_store_acquire_model(arbor_store *s, const char *name);
 /* References to every model, sorted by name, in a malloc'd array (*out,
- * free it after releasing each). Returns the count; 0 with *out NULL when
- * out of memory or empty. */
-uint32_t arbor_store_list_models(arbor_store *s, arbor_model ***out);
+ * NULL when empty; free it after releasing each), their count in *n. False,
+ * with nothing held, when out of memory: not the same as an empty store. */
+bool arbor_store_list_models(arbor_store *s, arbor_model ***out, uint32_t *n, arbor_err *e);
 
 void arbor_model_retain(arbor_model *m);
 void arbor_model_release(arbor_model *m);
@@ -169,6 +170,10 @@ void arbor_store_on_build(arbor_store *s, arbor_store_build_fn fn, void *user);
 /* Asks every build in progress to stop (shutdown): their waiters are
  * called soon with ARBOR_ERR_CANCELLED. Does not wait. */
 void arbor_store_cancel_builds(arbor_store *s);
+/* Cancels every build and waits until each has ended: its build callback
+ * and waiters have returned, so none of them runs after this (a server
+ * stopping before the store calls it before it frees what they use). */
+void arbor_store_stop_builds(arbor_store *s);
 
 /* Bytes a mesh holds (its arrays). */
 uint64_t arbor_mesh_bytes(const arbor_mesh *m);

@@ -172,7 +172,10 @@ static bool read_chunked(hc_conn *c, rbuf *b, size_t at, size_t *len, arbor_err 
     for (;;) {
         if (!read_line(c, b, line, sizeof line, e))
             return false;
-        size_t n = strtoul(line, NULL, 16);
+        char *end;
+        size_t n = strtoul(line, &end, 16);
+        if (end == line || (*end != '\0' && *end != ';' && *end != ' ' && *end != '\t'))
+            return arbor_fail(e, ARBOR_ERR_IO, "a chunk's size line '%s' is no hex number", line);
         if (n == 0)
             return read_line(c, b, line, sizeof line, e); /* the last, empty line */
         if (n > BODY_MAX || !want(c, b, n + 2, e))
@@ -243,8 +246,11 @@ static bool read_response(hc_conn *c, hc_response *out, bool *fresh_eof, arbor_e
         ok = out->len <= BODY_MAX ? want(c, &b, out->len, e)
                                   : arbor_fail(e, ARBOR_ERR_IO, "an answer of %zu bytes is too large", out->len);
     } else {
+        /* the body ends where the connection does: any other stop is an error */
         while (fill(c, &b))
             ;
+        if (errno != 0)
+            ok = fail_net(e, c, "the answer was cut short by", errno);
         out->len = b.len - head_len;
         hc_close(c);
     }

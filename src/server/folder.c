@@ -51,10 +51,7 @@ static bool ends_with(const char *s, const char *suffix)
 
 bool folder_is_model_file(const char *file)
 {
-    for (int i = 0; i < ARBOR_MODEL_NEXTS; i++)
-        if (ends_with(file, arbor_model_exts[i]))
-            return true;
-    return false;
+    return arbor_model_file_rank(file) >= 0;
 }
 
 bool folder_is_material_file(const char *file)

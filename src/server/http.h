@@ -14,6 +14,7 @@
 #define ARBOR_SERVER_HTTP_H
 
 #include <cjson/cJSON.h>
+#include <limits.h>
 #include <microhttpd.h>
 #include <pthread.h>
 #include <stdatomic.h>
@@ -29,8 +30,23 @@ typedef struct render_req render_req;
 typedef struct job_table job_table;
 typedef struct sync_load sync_load;
 typedef struct sync_bad sync_bad;
-typedef struct sync_odd sync_odd;
 typedef struct folder_task folder_task;
+
+/* The shared folder's files whose names were changed to make model names
+ * ("rose+vase.obj", "Box.OBJ"), as read at one version of the folder (its
+ * mtime): read again only when the folder has changed, so that a request
+ * for a name with no NAME.EXT costs a stat of the folder, not a read of all
+ * its entries (sync.c). */
+typedef struct {
+    bool read;                /* false: never read, or the last read failed */
+    int64_t mtime_ns;         /* the folder's when read */
+    int64_t read_ns;          /* the clock's when read (CLOCK_REALTIME, as mtime) */
+    uint32_t n;
+    struct {
+        char file[NAME_MAX + 1];
+        char name[ARBOR_MODEL_NAME_MAX + 1]; /* the model name it makes */
+    } *files;                 /* n, malloc'd; NULL when none */
+} sync_odd;
 
 
 struct arbor_server {
@@ -57,7 +73,7 @@ struct arbor_server {
     uint32_t inflight;              /* requests suspended, waiting for a worker */
     sync_load *loads;               /* models being loaded from the shared folder (sync.c) */
     sync_bad *bad;                  /* folder files that failed to load (sync.c) */
-    sync_odd *odd;                  /* the folder's files whose names were changed into model names (sync.c) */
+    sync_odd odd;                   /* the folder's files whose names were changed into model names (sync.c) */
     folder_task *folder_waiting;    /* uploads and DELETEs queued behind the one running (models.c) */
     bool folder_busy;               /* one is running */
     uint64_t next_request_id;

@@ -184,6 +184,10 @@ static void ready_run(void *ctx, uint32_t task)
     (void)task;
     inspect_req *q = ctx;
     answer(q, q->ready);
+    /* The tree goes before the connection resumes: the last resume lets
+     * shutdown destroy the store, which expects no tree held. */
+    arbor_tree_release(q->ready);
+    q->ready = NULL;
     http_resume(q->http);
 }
 

@@ -169,21 +169,26 @@ job_table *jobs_create(arbor_pool *pool)
 }
 
 /* Cancels a job (lock held): a queued one ends now, a running one at its
- * next check. */
-static void cancel_locked(job *j)
+ * next check. Returns the model a queued job held, for the caller to
+ * release (after unlocking: freeing a mesh is slow), else NULL. */
+static arbor_model *cancel_locked(job *j)
 {
     atomic_store(&j->cancel, true);
-    if (j->state == JOB_QUEUED) {
-        j->state = JOB_CANCELLED;
-        j->ended_ms = arbor_now_ms();
-    }
+    if (j->state != JOB_QUEUED)
+        return NULL;
+    j->state = JOB_CANCELLED;
+    j->ended_ms = arbor_now_ms();
+    arbor_model *m = j->model;
+    j->model = NULL;
+    return m;
 }
 
 void jobs_cancel_all(job_table *t)
 {
     pthread_mutex_lock(&t->lock);
+    /* shutdown: nothing waits on this lock for the meshes freed under it */
     for (job *j = t->jobs; j != NULL; j = j->next)
-        cancel_locked(j);
+        arbor_model_release(cancel_locked(j));
     t->closing = true;
     pthread_cond_broadcast(&t->work);
     pthread_mutex_unlock(&t->lock);
@@ -304,8 +309,9 @@ static bool read_bench(http_req *r, const cJSON *body, job *j)
         return false;
     j->opts.runs = 1;
     if (runs != NULL) {
-        if (!cJSON_IsNumber(runs) || runs->valuedouble != (int)runs->valuedouble || runs->valuedouble < 1 ||
-            runs->valuedouble > JOB_RUNS_MAX) {
+        /* in range before the cast: a double beyond int's range makes it undefined */
+        if (!cJSON_IsNumber(runs) || !(runs->valuedouble >= 1 && runs->valuedouble <= JOB_RUNS_MAX) ||
+            runs->valuedouble != (int)runs->valuedouble) {
             http_reply_error(r, 400, "bad_request", "runs must be a whole number in 1..%d", JOB_RUNS_MAX);
             return false;
         }
@@ -395,10 +401,10 @@ void route_job(http_req *r, const char *id)
     job *j = t->jobs;
     while (j != NULL && (j->id != want || *end != '\0' || end == id))
         j = j->next;
-    if (j != NULL && del)
-        cancel_locked(j);
+    arbor_model *dropped = j != NULL && del ? cancel_locked(j) : NULL;
     cJSON *o = j != NULL ? job_json(j, arbor_now_ms()) : NULL;
     pthread_mutex_unlock(&t->lock);
+    arbor_model_release(dropped);
     if (o == NULL)
         http_reply_error(r, 404, "not_found", "no job %s", id);
     else

@@ -91,7 +91,7 @@ void frames_count(arbor_server *s, uint32_t *waiting, uint32_t *rendering)
 {
     uint32_t submitted = 0;
     for (render_req *rr = s->frames; rr != NULL; rr = rr->next)
-        submitted += rr->state == RR_RENDERING && rr->frame != NULL;
+        submitted += rr->state == RR_RENDERING;
     *rendering = submitted < (uint32_t)s->config.threads ? submitted : (uint32_t)s->config.threads;
     *waiting = s->nframes - *rendering;
 }
@@ -245,10 +245,12 @@ static void start_frame(render_req *rr, arbor_tree *tree)
     if (go) {
         rr->tree = tree;
         rr->tree_ms = arbor_now_ms();
-        rr->state = RR_RENDERING;
         rr->submitted_ms = arbor_now_ms();
         rr->frame = arbor_render_submit(s->pool, arbor_tree_accel(tree), &rr->params, frame_done, rr, &err);
         submitted = rr->frame != NULL;
+        /* Only a frame that exists is RENDERING: cancel_locked cancels it. */
+        if (submitted)
+            rr->state = RR_RENDERING;
     }
     pthread_mutex_unlock(&s->lock);
     if (!go)
@@ -309,9 +311,13 @@ static void cancel_where(arbor_server *s, bool (*pick)(const render_req *, const
     render_req *rr = s->frames;
     while (rr != NULL) {
         render_req *next = rr->next;
-        if (pick == NULL || pick(rr, arg)) {
+        /* Without room to list them, frames waiting for a tree are left to
+         * be answered when it comes (a cancelled build answers too): one
+         * taken off the list here and not answered would never resume. */
+        bool answerable = now != NULL || rr->state == RR_RENDERING;
+        if (answerable && (pick == NULL || pick(rr, arg))) {
             render_req *c = cancel_locked(s, rr, why);
-            if (c != NULL && now != NULL)
+            if (c != NULL)
                 now[n++] = c;
         }
         rr = next;

@@ -548,7 +548,12 @@ static void list_models(http_req *r)
     if (!sync_models(r))
         return;
     arbor_model **models;
-    uint32_t n = arbor_store_list_models(r->srv->store, &models);
+    uint32_t n;
+    arbor_err e;
+    if (!arbor_store_list_models(r->srv->store, &models, &n, &e)) {
+        http_reply_err(r, &e);
+        return;
+    }
     cJSON *o = cJSON_CreateObject(), *a = cJSON_AddArrayToObject(o, "models");
     for (uint32_t i = 0; i < n; i++) {
         json_push(a, model_json(r->srv, models[i]));
@@ -1086,9 +1091,11 @@ void arbor_server_stop(arbor_server *s)
     pthread_cond_broadcast(&s->reaper_wake);
     pthread_mutex_unlock(&s->lock);
     frames_cancel_all(s);
-    arbor_store_cancel_builds(s->store);
     if (s->jobs != NULL)
         jobs_cancel_all(s->jobs);
+    /* A build's callback and waiters (frames waiting for a tree, start-up's
+     * prebuild) reach this server: they must all have run before it goes. */
+    arbor_store_stop_builds(s->store);
     arbor_store_on_build(s->store, NULL, NULL);
     if (s->reaper_started)
         pthread_join(s->reaper, NULL);

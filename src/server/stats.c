@@ -281,6 +281,13 @@ void route_stats(http_req *r)
         arbor_model_release(one);
         return;
     }
+    arbor_model **models = NULL;
+    uint32_t n = 0;
+    arbor_err e;
+    if (one == NULL && !arbor_store_list_models(s->store, &models, &n, &e)) {
+        http_reply_err(r, &e);
+        return;
+    }
     cJSON *o = cJSON_CreateObject();
     json_put(o, "daemon", daemon_json(s));
     cJSON *trees = cJSON_AddArrayToObject(o, "trees");
@@ -288,8 +295,6 @@ void route_stats(http_req *r)
         add_ready_trees(s, one, trees);
         arbor_model_release(one);
     } else {
-        arbor_model **models;
-        uint32_t n = arbor_store_list_models(s->store, &models);
         for (uint32_t i = 0; i < n; i++) {
             add_ready_trees(s, models[i], trees);
             arbor_model_release(models[i]);

@@ -23,9 +23,9 @@
  * after SYNC_RETRY_MS, since its cause may have passed meanwhile.
  *
  * The checks are stat(2) calls on the polling thread (metadata only: no
- * file is read there; a name with '_', which may stand for a file's odd
- * characters, also stats the folder, whose entries are read again only when
- * it has changed: sync_odd); reading and parsing happen on the pool.
+ * file is read there; a name without NAME.EXT, which may be a renamed
+ * file's, also stats the folder, whose entries are read again only when it
+ * has changed: sync_odd); reading and parsing happen on the pool.
  */
 #include <dirent.h>
 #include <limits.h>
@@ -82,31 +82,18 @@ static bool entry_name(const char *file, char *name, size_t cap)
     return file[0] != '.' && arbor_model_name_of_file(file, name, cap) && arbor_model_name_valid(name);
 }
 
-/* The shared folder's files whose names were changed to make model names
- * ("rose+vase.obj"), as read at one version of the folder (its mtime): read
- * again only when the folder has changed, so that a request for a name with
- * no NAME.EXT costs a stat of the folder, not a read of all its entries. */
-struct sync_odd {
-    int64_t mtime_ns;         /* the folder's when read */
-    int64_t read_ns;          /* the clock's when read (CLOCK_REALTIME, as mtime) */
-    uint32_t n;
-    struct {
-        char file[NAME_MAX + 1];
-        char name[ARBOR_MODEL_NAME_MAX + 1]; /* the model name it makes */
-    } *files;
-};
-
 static int64_t ns_of(struct timespec t)
 {
     return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
 }
 
-/* The folder's renamed files now: NULL when it cannot be read or memory
- * runs out (the caller then finds none). */
-static sync_odd *odd_read(const char *dir, int64_t mtime_ns)
+/* The folder's renamed files now into *o: false when it cannot be read or
+ * memory runs out (the caller then finds none). A folder without renamed
+ * files allocates nothing. */
+static bool odd_read(const char *dir, int64_t mtime_ns, sync_odd *o)
 {
-    sync_odd *o = calloc(1, sizeof *o);
-    DIR *d = o != NULL ? opendir(dir) : NULL;
+    memset(o, 0, sizeof *o);
+    DIR *d = opendir(dir);
     struct timespec now;
     clock_gettime(CLOCK_REALTIME, &now);
     struct dirent *ent;
@@ -130,21 +117,15 @@ static sync_odd *odd_read(const char *dir, int64_t mtime_ns)
     }
     if (d != NULL)
         closedir(d);
-    if (!ok && o != NULL) {
+    if (!ok) {
         free(o->files);
-        free(o);
-        return NULL;
+        memset(o, 0, sizeof *o);
+        return false;
     }
+    o->read = true;
     o->mtime_ns = mtime_ns;
     o->read_ns = ns_of(now);
-    return o;
-}
-
-static void odd_free(sync_odd *o)
-{
-    if (o != NULL)
-        free(o->files);
-    free(o);
+    return true;
 }
 
 /* The renamed file of model `name` (the lowest arbor_model_file_rank, then
@@ -158,22 +139,23 @@ static bool odd_file(arbor_server *s, const char *dir, const char *name, char *f
     pthread_mutex_lock(&s->lock);
     /* a read within a second of the folder's last change may have missed
      * an entry made in the same tick of a coarse clock: read again */
-    bool current = s->odd != NULL && s->odd->mtime_ns == mtime && s->odd->read_ns - mtime > 1000000000;
+    bool current = s->odd.read && s->odd.mtime_ns == mtime && s->odd.read_ns - mtime > 1000000000;
     pthread_mutex_unlock(&s->lock);
     if (!current) {
-        sync_odd *fresh = odd_read(dir, mtime);
+        sync_odd fresh;
+        odd_read(dir, mtime, &fresh);
         pthread_mutex_lock(&s->lock);
-        odd_free(s->odd);
+        free(s->odd.files);
         s->odd = fresh;
         pthread_mutex_unlock(&s->lock);
     }
     int best = -1;
     first[0] = '\0';
     pthread_mutex_lock(&s->lock);
-    for (uint32_t i = 0; s->odd != NULL && i < s->odd->n; i++) {
-        const char *file = s->odd->files[i].file;
+    for (uint32_t i = 0; i < s->odd.n; i++) {
+        const char *file = s->odd.files[i].file;
         int rank = arbor_model_file_rank(file);
-        if (strcmp(s->odd->files[i].name, name) == 0 &&
+        if (strcmp(s->odd.files[i].name, name) == 0 &&
             (best < 0 || rank < best || (rank == best && strcmp(file, first) < 0))) {
             best = rank;
             snprintf(first, cap, "%s", file);
@@ -185,9 +167,9 @@ static bool odd_file(arbor_server *s, const char *dir, const char *name, char *f
 
 /* The file of model `name` in the shared folder and its stamp, if any:
  * NAME.EXT, by the order of arbor_model_exts, or else the file whose name
- * was changed to make that name, as the daemon chose at start
- * (arbor_model_file_rank: "rose+vase.obj" for rose_vase). Such a name has a
- * '_' for each character changed, so other names look for none. */
+ * was changed to make that name or whose extension is in upper case, as the
+ * daemon chose at start (arbor_model_file_rank: "rose+vase.obj" for
+ * rose_vase, "Box.OBJ" for Box), from the cached read of the folder. */
 static bool folder_file(arbor_server *s, const char *name, char *path, size_t cap, uint64_t *stamp)
 {
     const char *dir = s->config.upload_dir;
@@ -197,7 +179,7 @@ static bool folder_file(arbor_server *s, const char *name, char *path, size_t ca
             return true;
     }
     char first[NAME_MAX + 1];
-    if (dir == NULL || strchr(name, '_') == NULL || !odd_file(s, dir, name, first, sizeof first))
+    if (dir == NULL || !odd_file(s, dir, name, first, sizeof first))
         return false;
     snprintf(path, cap, "%s/%s", dir, first);
     return (*stamp = arbor_file_stamp(path)) != 0;
@@ -288,8 +270,8 @@ static bool bad_known(arbor_server *s, const char *name, uint64_t stamp, arbor_e
 
 void sync_forget(arbor_server *s)
 {
-    odd_free(s->odd);
-    s->odd = NULL;
+    free(s->odd.files);
+    memset(&s->odd, 0, sizeof s->odd);
     while (s->bad != NULL) {
         sync_bad *b = s->bad;
         s->bad = b->next;
@@ -475,9 +457,13 @@ bool sync_models(http_req *r)
 {
     arbor_server *s = r->srv;
     arbor_model **models;
-    uint32_t n = arbor_store_list_models(s->store, &models);
-    bool current = true;
+    uint32_t n;
     arbor_err bad; /* a file that fails to load is left out of the listing */
+    if (!arbor_store_list_models(s->store, &models, &n, &bad)) {
+        http_reply_err(r, &bad);
+        return false;
+    }
+    bool current = true;
     char path[PATH_MAX];
     for (uint32_t i = 0; i < n; i++) {
         current = current && settle(r, arbor_model_name(models[i]), models[i], &bad, path, sizeof path) != SYNC_LOAD;

@@ -20,6 +20,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 
 #include "arbor/store.h"
 #include "arbor/sys.h"
@@ -139,14 +140,15 @@ bool arbor_model_name_valid(const char *name)
 
 const char *const arbor_model_exts[ARBOR_MODEL_NEXTS] = {".obj", ".ply", ".obj.gz", ".ply.gz"};
 
-/* The index in arbor_model_exts of file's extension, -1 for none; the
- * compressed ones tried first: "a.obj.gz" is a, not "a.obj". */
+/* The index in arbor_model_exts of file's extension in any case (the
+ * loader reads "BOX.OBJ" too), -1 for none; the compressed ones tried
+ * first: "a.obj.gz" is a, not "a.obj". */
 static int model_ext(const char *file)
 {
     size_t n = strlen(file);
     for (int i = ARBOR_MODEL_NEXTS; i-- > 0;) {
         size_t k = strlen(arbor_model_exts[i]);
-        if (n > k && strcmp(file + n - k, arbor_model_exts[i]) == 0)
+        if (n > k && strcasecmp(file + n - k, arbor_model_exts[i]) == 0)
             return i;
     }
     return -1;
@@ -170,6 +172,8 @@ int arbor_model_file_rank(const char *file)
     if (ext < 0)
         return -1;
     size_t stem = strlen(file) - strlen(arbor_model_exts[ext]);
+    if (strcmp(file + stem, arbor_model_exts[ext]) != 0)
+        return ext + ARBOR_MODEL_NEXTS; /* NAME.OBJ is not the file NAME.obj */
     for (size_t j = 0; j < stem; j++)
         if (!name_char(file[j]))
             return ext + ARBOR_MODEL_NEXTS;
@@ -500,19 +504,22 @@ arbor_model *arbor_store_acquire_model(arbor_store *s, const char *name)
     return m;
 }
 
-uint32_t arbor_store_list_models(arbor_store *s, arbor_model ***out)
+bool arbor_store_list_models(arbor_store *s, arbor_model ***out, uint32_t *n, arbor_err *e)
 {
     pthread_mutex_lock(&s->lock);
-    uint32_t n = s->nmodels;
-    *out = n > 0 ? malloc(n * sizeof **out) : NULL;
-    if (*out == NULL)
-        n = 0;
-    for (uint32_t i = 0; i < n; i++) {
+    *n = s->nmodels;
+    *out = *n > 0 ? malloc(*n * sizeof **out) : NULL;
+    bool ok = *n == 0 || *out != NULL;
+    for (uint32_t i = 0; ok && i < *n; i++) {
         (*out)[i] = s->models[i];
         arbor_model_retain(s->models[i]);
     }
     pthread_mutex_unlock(&s->lock);
-    return n;
+    if (!ok) {
+        *n = 0;
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory listing the models");
+    }
+    return true;
 }
 
 void arbor_model_tree_info(arbor_store *s, arbor_model *m, arbor_accel_kind kind, arbor_builder builder,
@@ -814,15 +821,20 @@ void arbor_store_cancel_builds(arbor_store *s)
     pthread_mutex_unlock(&s->lock);
 }
 
-void arbor_store_destroy(arbor_store *s)
+void arbor_store_stop_builds(arbor_store *s)
 {
-    if (s == NULL)
-        return;
     arbor_store_cancel_builds(s);
     pthread_mutex_lock(&s->lock);
     while (s->building > 0)
         pthread_cond_wait(&s->builds_done, &s->lock);
     pthread_mutex_unlock(&s->lock);
+}
+
+void arbor_store_destroy(arbor_store *s)
+{
+    if (s == NULL)
+        return;
+    arbor_store_stop_builds(s);
     while (s->nmodels > 0) {
         dropped d;
         if (!dropped_init(s, &d, NULL))

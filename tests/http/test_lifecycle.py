@@ -294,6 +294,23 @@ def test_sigterm_during_tree_build_exits_fast():
 
 
 @test
+def test_sigterm_during_start_up_prebuild_exits_0():
+    """SIGTERM as soon as the daemon listens, while its start-up trees build: the builds are cancelled and
+    their callbacks, which reach the server, all run before it is freed (under ASan a use after free was
+    reported here). Several models, so that builds are queued as well as running."""
+    models = [os.path.join(harness.SHARED, m) for m in ("bunny.obj", "castle.obj", "galleon.obj")]
+    if not all(os.path.exists(m) for m in models):
+        harness.ignore("needs bunny, castle and galleon in %s" % harness.SHARED)
+    for round in range(3):
+        d = Daemon(models, ["--threads", "2", "--prebuild", "bvh:sah,kd:sah"], wait_ready=False,
+                   name="prebuild-cancel daemon")
+        try:
+            _sigterm_exits_fast(d, "during the start-up prebuild (round %d)" % round, limit=30.0)
+        finally:
+            d.cleanup()
+
+
+@test
 def test_sigterm_during_bench_job_exits_fast():
     d = Daemon([our("menger.obj")], ["--threads", "2", "--prebuild", "none"], name="bench-cancel daemon")
     try:

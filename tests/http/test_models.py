@@ -387,10 +387,17 @@ def test_files_whose_names_are_changed_are_models_at_every_request():
     """A file whose name holds characters a model name may not ("x+y.obj") is model x_y at start, and so
     at every request after: DELETE keeps its file and the next request loads it again; one copied in while
     the daemon runs is listed and loaded under its changed name; removed, it is a 404. A file with the
-    name itself (x_y.obj) comes first."""
-    d = Daemon([("x+y.obj", our("cornell.obj"))], ["--threads", "1"], copy=True, name="odd-names daemon")
+    name itself (x_y.obj) comes first. Extensions in upper case (Up.OBJ, LATE.PLY) are model files too."""
+    d = Daemon([("x+y.obj", our("cornell.obj")), ("Up.OBJ", our("cornell.obj"))], ["--threads", "1"], copy=True,
+               name="odd-names daemon")
     try:
         eq(d.model("x_y")["triangles"], 36, "x+y.obj at start")
+        eq(d.model("Up")["triangles"], 36, "Up.OBJ at start (an extension in upper case)")
+        with open(os.path.join(d.models_dir, "LATE.PLY"), "wb") as f:
+            f.write(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                    b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                    b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+        eq(d.model("LATE")["triangles"], 1, "LATE.PLY copied in while the daemon runs")
         eq(expect_json(d.req("DELETE", "/api/models/x_y")), {"deleted": "x_y"}, "DELETE x_y")
         check(os.path.exists(os.path.join(d.models_dir, "x+y.obj")), "DELETE removed the operator's x+y.obj")
         eq(d.model("x_y")["triangles"], 36, "x_y loaded again from x+y.obj")

@@ -553,21 +553,23 @@ typedef struct {
     const char *head;  /* request line and headers but Content-Length */
     const char *body;  /* NULL: none */
     int ok;            /* its status when nothing fails */
+    const char *holds; /* NULL, or what a body answered with `ok` must hold */
 } http_case;
 
 static const http_case cases[] = {
-    {"healthz", "GET /healthz HTTP/1.1", NULL, 200},
-    {"models", "GET /api/models HTTP/1.1", NULL, 200},
-    {"model", "GET /api/models/m HTTP/1.1", NULL, 200},
-    {"stats", "GET /api/stats HTTP/1.1", NULL, 200},
-    {"metrics", "GET /metrics HTTP/1.1", NULL, 200},
-    {"static", "GET /index.html HTTP/1.1", NULL, 200},
-    {"render get", "GET /api/render?model=m&width=32&height=24&mode=heat HTTP/1.1", NULL, 200},
+    {"healthz", "GET /healthz HTTP/1.1", NULL, 200, NULL},
+    /* a listing that failed must not pass for an empty one */
+    {"models", "GET /api/models HTTP/1.1", NULL, 200, "\"name\":\"m\""},
+    {"model", "GET /api/models/m HTTP/1.1", NULL, 200, "\"name\":\"m\""},
+    {"stats", "GET /api/stats HTTP/1.1", NULL, 200, NULL},
+    {"metrics", "GET /metrics HTTP/1.1", NULL, 200, NULL},
+    {"static", "GET /index.html HTTP/1.1", NULL, 200, NULL},
+    {"render get", "GET /api/render?model=m&width=32&height=24&mode=heat HTTP/1.1", NULL, 200, NULL},
     {"render post", "POST /api/render HTTP/1.1\r\nContent-Type: application/json",
-     "{\"model\":\"m\",\"width\":32,\"height\":24,\"mode\":\"ao\",\"format\":\"json\"}", 200},
-    {"tree build", "POST /api/models/m/trees HTTP/1.1", "{\"accel\":\"bvh\",\"builder\":\"median\"}", 200},
-    {"upload", "PUT /api/models/up HTTP/1.1", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", 201},
-    {"bad json", "POST /api/render HTTP/1.1", "{\"model\":", 400},
+     "{\"model\":\"m\",\"width\":32,\"height\":24,\"mode\":\"ao\",\"format\":\"json\"}", 200, NULL},
+    {"tree build", "POST /api/models/m/trees HTTP/1.1", "{\"accel\":\"bvh\",\"builder\":\"median\"}", 200, NULL},
+    {"upload", "PUT /api/models/up HTTP/1.1", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", 201, NULL},
+    {"bad json", "POST /api/render HTTP/1.1", "{\"model\":", 400, NULL},
 };
 
 static void request_text(const http_case *c, char *out, size_t cap)
@@ -583,8 +585,10 @@ static void request_text(const http_case *c, char *out, size_t cap)
 static void listing(arbor_store *s, char *out, size_t cap)
 {
     arbor_model **ms;
-    uint32_t n = arbor_store_list_models(s, &ms);
+    uint32_t n;
+    arbor_err e;
     out[0] = '\0';
+    TEST_ASSERT_TRUE_MESSAGE(arbor_store_list_models(s, &ms, &n, &e), e.msg);
     for (uint32_t i = 0; i < n; i++) {
         size_t len = strlen(out);
         snprintf(out + len, cap - len, "%s@%llu,", arbor_model_name(ms[i]),
@@ -628,7 +632,8 @@ static void sweep_request(arbor_store *s, int port, const http_case *c)
         settle(s);
         long before = alloc_hook_live();
         alloc_hook_arm(n);
-        int status = http(port, request, NULL, 0);
+        char body[4096];
+        int status = http(port, request, body, sizeof body);
         bool fired = alloc_hook_disarm();
         bool clean = status == c->ok || status == 503 || status == 507 ||
                      /* libmicrohttpd drops a connection it cannot allocate for; nothing can answer it */
@@ -636,6 +641,11 @@ static void sweep_request(arbor_store *s, int port, const http_case *c)
         if (!clean || (!fired && status != c->ok)) {
             snprintf(msg, sizeof msg, "%s, allocation %ld failing (in %s): status %d", what, n,
                      alloc_hook_failed_in(), status);
+            TEST_FAIL_MESSAGE(msg);
+        }
+        if (status == c->ok && c->holds != NULL && strstr(body, c->holds) == NULL) {
+            snprintf(msg, sizeof msg, "%s, allocation %ld failing (in %s): %d without %s: %.200s", what, n,
+                     alloc_hook_failed_in(), status, c->holds, body);
             TEST_FAIL_MESSAGE(msg);
         }
         if (uploads)

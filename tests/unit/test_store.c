@@ -320,7 +320,10 @@ static void test_add_acquire_list_remove(void)
                 sorted[j] = tmp;
             }
     arbor_model **list;
-    TEST_ASSERT_EQUAL_UINT32(n, arbor_store_list_models(s, &list));
+    uint32_t listed;
+    arbor_err e;
+    TEST_ASSERT_TRUE_MESSAGE(arbor_store_list_models(s, &list, &listed, &e), e.msg);
+    TEST_ASSERT_EQUAL_UINT32(n, listed);
     for (size_t i = 0; i < n; i++) {
         TEST_ASSERT_EQUAL_STRING(sorted[i], arbor_model_name(list[i]));
         TEST_ASSERT_EQUAL_STRING("sphere.obj", arbor_model_file(list[i]));
@@ -336,12 +339,12 @@ static void test_add_acquire_list_remove(void)
     TEST_ASSERT_NULL(arbor_store_acquire_model(s, "alph"));
     TEST_ASSERT_NULL(arbor_store_acquire_model(s, "ALPHA"));
 
-    arbor_err e;
     TEST_ASSERT_TRUE(arbor_store_remove_model(s, "alpha", &e));
     TEST_ASSERT_NULL(arbor_store_acquire_model(s, "alpha"));
     assert_failed(arbor_store_remove_model(s, "alpha", &e), &e, ARBOR_ERR_NOT_FOUND);
     TEST_ASSERT_NOT_NULL_MESSAGE(strstr(e.msg, "alpha"), e.msg);
-    TEST_ASSERT_EQUAL_UINT32(n - 1, arbor_store_list_models(s, &list));
+    TEST_ASSERT_TRUE_MESSAGE(arbor_store_list_models(s, &list, &listed, &e), e.msg);
+    TEST_ASSERT_EQUAL_UINT32(n - 1, listed);
     for (size_t i = 0; i < n - 1; i++) {
         TEST_ASSERT_TRUE(strcmp(arbor_model_name(list[i]), "alpha") != 0);
         arbor_model_release(list[i]);
