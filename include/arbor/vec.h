@@ -10,6 +10,7 @@
 
 #include <float.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -28,6 +29,7 @@ static inline arbor_vec3 vec3_cross(arbor_vec3 a, arbor_vec3 b)
     return vec3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
 }
 static inline float vec3_length(arbor_vec3 a) { return sqrtf(vec3_dot(a, a)); }
+static inline bool vec3_finite(arbor_vec3 a) { return isfinite(a.x) && isfinite(a.y) && isfinite(a.z); }
 /* a / |a| when |a|^2 overflows or underflows (the cross products of edges
  * of huge or tiny triangles: a model at 1e13 or 1e-13): a is first scaled
  * by the power of two that brings its largest component into [1, 2),

@@ -125,6 +125,10 @@ bool arbor_render_params_validate(const arbor_render_params *p, arbor_err *e)
         return arbor_fail(e, ARBOR_ERR_INVALID, "heat_scale must be a positive number, not %g", p->heat_scale);
     if (!isfinite(c->tan_half_fov) || !(c->tan_half_fov > 0.0f))
         return arbor_fail(e, ARBOR_ERR_INVALID, "the camera's field of view must be in (0, 180) degrees");
+    if (!vec3_finite(c->forward) || !vec3_finite(c->right) || !vec3_finite(c->up))
+        return arbor_fail(e, ARBOR_ERR_INVALID,
+                          "the camera looks nowhere: its eye is its target (around a model of no extent, every "
+                          "orbit is; give camera.eye and camera.target)");
     return true;
 }
 

@@ -299,6 +299,11 @@ static bool read_bench(http_req *r, const cJSON *body, job *j)
         http_reply_error(r, 400, "bad_request", "model (a string) is required");
         return false;
     }
+    size_t len = strlen(model->valuestring);
+    if (len < 1 || len >= sizeof j->model_name) {
+        http_reply_error(r, 400, "bad_request", "model must be 1..%zu characters", sizeof j->model_name - 1);
+        return false;
+    }
     arbor_bench_opts_init(&j->opts);
     memset(j->opts.kinds, 0, sizeof j->opts.kinds);
     memset(j->opts.builders, 0, sizeof j->opts.builders);
@@ -399,7 +404,9 @@ void route_job(http_req *r, const char *id)
     job_table *t = r->srv->jobs;
     pthread_mutex_lock(&t->lock);
     job *j = t->jobs;
-    while (j != NULL && (j->id != want || *end != '\0' || end == id))
+    /* only the id as job_json writes it: no sign, space or leading zero that strtoull would take */
+    bool canonical = id[0] >= '1' && id[0] <= '9' && *end == '\0';
+    while (j != NULL && (j->id != want || !canonical))
         j = j->next;
     arbor_model *dropped = j != NULL && del ? cancel_locked(j) : NULL;
     cJSON *o = j != NULL ? job_json(j, arbor_now_ms()) : NULL;

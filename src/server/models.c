@@ -208,14 +208,16 @@ bool models_post_data(http_req *r, const char *data, size_t size)
         }
         bool put = http_method_is(r, "PUT");
         const char *type = MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_TYPE);
-        if (put && type != NULL && strncasecmp(type, "multipart/form-data", 19) == 0) {
+        bool multipart = type != NULL && strncasecmp(type, "multipart/form-data", 19) == 0;
+        if (put && multipart) {
             /* it would be saved as the model, boundaries and part headers in its text */
             http_reply_error(r, 415, "unsupported_media_type",
                              "PUT takes the model file itself: POST a multipart/form-data body");
             return false;
         }
         if (!put) {
-            r->post = MHD_create_post_processor(r->conn, 64 * 1024, on_part, r->parts);
+            /* libmicrohttpd would read a form (curl -d's default type) too */
+            r->post = multipart ? MHD_create_post_processor(r->conn, 64 * 1024, on_part, r->parts) : NULL;
             if (r->post == NULL) {
                 http_reply_error(r, 415, "unsupported_media_type",
                                  "POST of a model takes multipart/form-data (PUT takes the file itself)");

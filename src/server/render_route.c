@@ -435,7 +435,13 @@ static bool admit(arbor_server *s, render_req *rr)
     if (rr->spec.stream[0] != '\0')
         cancel_where(s, same_stream, rr->spec.stream, CANCEL_SUPERSEDED);
     pthread_mutex_lock(&s->lock);
-    bool ok = !s->stopping && s->nframes < (uint32_t)(s->config.threads + s->config.queue);
+    /* A cancelled frame stays listed until its tiles stop, soon: it holds
+     * no place, or a frame that superseded one on its stream would find
+     * the place still taken and be refused too. */
+    uint32_t live = 0;
+    for (const render_req *q = s->frames; q != NULL; q = q->next)
+        live += !q->cancelled;
+    bool ok = !s->stopping && live < (uint32_t)(s->config.threads + s->config.queue);
     if (ok)
         list_add(s, rr);
     pthread_mutex_unlock(&s->lock);

@@ -83,7 +83,7 @@ void route_static(http_req *r, const char *path)
     int fd = -1;
     struct stat st;
     if (static_resolve(r->srv->config.web_dir, path, file))
-        fd = open(file, O_RDONLY | O_CLOEXEC);
+        fd = open(file, O_RDONLY | O_CLOEXEC | O_NONBLOCK); /* a FIFO would block the polling thread */
     if (fd < 0 || fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
         if (fd >= 0)
             close(fd);

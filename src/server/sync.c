@@ -285,7 +285,7 @@ static void bad_reply(http_req *r, const char *name, const char *path, const arb
     if (e->status == ARBOR_ERR_NOSPACE || e->status == ARBOR_ERR_NOMEM)
         http_reply_err(r, e);
     else
-        http_reply_error(r, 500, "internal", "model '%s' cannot be loaded from %s: %s", name, path, e->msg);
+        http_reply_error(r, 500, "bad_model_file", "model '%s' cannot be loaded from %s: %s", name, path, e->msg);
 }
 
 /* ---- loading, on a worker ---- */

@@ -90,6 +90,9 @@ def test_bench_job_ids_name_one_daemons_jobs():
         check(a != b, "both daemons named their first job %r" % a)
         expect_error(d2.get("/api/jobs/%s" % a), 404, "not_found")
         expect_error(d.get("/api/jobs/%s" % b), 404, "not_found")
+        # the id only as written: not with a sign, a leading zero or a space before it
+        for other in ("+" + a, "0" + a, "%20" + a, "-" + str(2 ** 64 - int(a))):
+            expect_error(d.get("/api/jobs/%s" % other), 404, "not_found")
         _poll(d2, b, ("done", "failed", "cancelled"), 60)
         d2.stop_clean()
     finally:

@@ -196,6 +196,29 @@ def _queued_stream(d):
 
 
 @test
+def test_stream_key_supersedes_on_a_full_daemon():
+    """--threads 1 --queue 0: the one place is A's (stream s); B on stream s supersedes A and takes its
+    place: A 409, B 200, not both refused."""
+    d = Daemon([our("menger.obj"), our("cornell.obj")], ["--threads", "1", "--queue", "0", "--max-pixels", "256M"],
+               name="full-stream daemon")
+    try:
+        out = {}
+        ta = _start(d, dict(BIG, width=2048, height=2048, stream="s-full"), out, "a")
+        _wait_queue(d, 1)
+        tb = _start(d, {"model": "cornell", "width": 32, "height": 32, "stream": "s-full"}, out, "b")
+        for t in (ta, tb):
+            t.join(60)
+        ra, rb = out["a"][0], out["b"][0]
+        for r, what in ((ra, "A"), (rb, "B")):
+            check(not isinstance(r, Exception), "frame %s: no HTTP answer %r" % (what, r))
+        expect_error(ra, 409, "superseded")
+        eq(rb.status, 200, "B, which superseded A on the full daemon: %s" % rb.short())
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+@test
 def test_frame_timeout_503():
     d = Daemon([our("menger.obj")], ["--threads", "1", "--frame-timeout", "1", "--max-pixels", "256M"],
                name="timeout daemon")

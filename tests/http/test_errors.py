@@ -178,6 +178,12 @@ CASES = [
      400, "bad_request", "runs"),
     ("bench_unknown_model", "main", "POST", "/api/bench", {"model": "no-such-model", "accel": ["bvh"], "builder": ["sah"],
                                                           "runs": 1}, 404, "not_found", None),
+    ("bench_runs_huge", "main", "POST", "/api/bench", {"model": "cornell", "accel": ["bvh"], "builder": ["sah"],
+                                                      "runs": 1e300}, 400, "bad_request", "runs"),
+    # a name one longer than any model's is refused, not cut to the 64 characters of another model's
+    ("bench_model_name_too_long", "main", "POST", "/api/bench", {"model": "c" * 64 + "x", "accel": ["bvh"],
+                                                                "builder": ["sah"], "runs": 1}, 400, "bad_request",
+     "model must be 1..64 characters"),
     ("bench_unknown_builder", "main", "POST", "/api/bench", {"model": "cornell", "accel": ["bvh"], "builder": ["fast"],
                                                             "runs": 1}, 400, "bad_request", "fast"),
     ("bench_embree_unknown_mode", "main", "POST", "/api/bench", {"model": "cornell", "accel": ["bvh"], "builder": ["sah"],
@@ -307,6 +313,17 @@ def test_error_put_of_a_multipart_body():
                  "unsupported_media_type", "POST")
     eq([f for f in os.listdir(d.models_dir) if f.startswith("mp.")], [], "files the refused PUT left")
     expect_error(d.req("GET", "/api/models/mp"), 404, "not_found")
+
+
+@test
+def test_error_post_of_a_form_body():
+    """curl --data-binary @m.obj (no -H) sends application/x-www-form-urlencoded: a 415 naming the type a
+    POST takes, not a 400 about a malformed multipart body."""
+    d = limits_daemon()
+    r = d.req("POST", "/api/models/form", body=b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+              headers={"Content-Type": "application/x-www-form-urlencoded"})
+    expect_error(r, 415, "unsupported_media_type", "multipart/form-data")
+    expect_error(d.req("GET", "/api/models/form"), 404, "not_found")
 
 
 @test

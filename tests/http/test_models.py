@@ -590,7 +590,7 @@ def test_a_file_that_fails_to_load_leaves_the_listing_whole():
             f.write(b"v 0 0 0\nf 1 2 3\n")
         for i in range(2):
             eq([m["name"] for m in expect_json(d.get("/api/models"))["models"]], ["cornell"], "listing %d" % i)
-        e = expect_error(d.get("/api/models/broken"), 500, "internal")
+        e = expect_error(d.get("/api/models/broken"), 500, "bad_model_file")
         check("vertex index 2 out of range" in e["message"], "the load's error in %r" % e["message"])
         with open(path + ".new", "wb") as f:
             f.write(TETRA_OBJ)
@@ -601,7 +601,7 @@ def test_a_file_that_fails_to_load_leaves_the_listing_whole():
         with open(path + ".new", "wb") as f:
             f.write(b"v 0 0 0\nf 1 2 3\n")
         os.rename(path + ".new", path)
-        expect_error(d.get("/api/models/broken"), 500, "internal")
+        expect_error(d.get("/api/models/broken"), 500, "bad_model_file")
         eq([m["name"] for m in expect_json(d.get("/api/models"))["models"]], ["cornell"], "listing, broken again")
         # and it can be deleted (unloaded: the operator's file stays) without being loaded first
         eq(expect_json(d.req("DELETE", "/api/models/broken")), {"deleted": "broken"}, "DELETE of a broken file")

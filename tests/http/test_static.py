@@ -3,7 +3,7 @@ import os
 import tempfile
 import time
 
-from harness import Daemon, check, eq, expect_ok, fail, our, shared, test
+from harness import Daemon, check, eq, expect_error, expect_ok, fail, our, shared, test
 
 SECRET = b"ARBOR-SECRET-MARKER-7f3a"
 INDEX = b"<!doctype html><title>arbor test</title><p>index of the test web folder</p>\n"
@@ -27,6 +27,7 @@ def web_daemon():
         os.symlink("../secret.txt", os.path.join(web, "rel-link-out.txt"))
         os.symlink(root, os.path.join(web, "linkdir"))
         os.symlink("/etc/passwd", os.path.join(web, "passwd"))
+        os.mkfifo(os.path.join(web, "pipe.txt"))
         d = Daemon([our("cornell.obj")], ["--threads", "1", "--web", web], name="web daemon")
         d.web = web
         d.root = root
@@ -110,6 +111,15 @@ TRAVERSALS = [
     "/..%00/secret.txt",
     "/%252e%252e/secret.txt",
 ]
+
+
+@test
+def test_static_fifo_is_not_found_and_blocks_nothing():
+    """A FIFO in the web folder is no file to serve: 404 at once, and the daemon answers the next request
+    (opening it for reading would wait for a writer on the polling thread, stopping every request)."""
+    d = web_daemon()
+    expect_error(d.get("/pipe.txt", timeout=10), 404, "not_found")
+    expect_ok(d.get("/healthz", timeout=10))
 
 
 @test

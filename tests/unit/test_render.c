@@ -172,6 +172,29 @@ static void test_quad_shaded_centre_is_lambert(void)
     arbor_mesh_free(&m);
 }
 
+/* A model of no extent (every vertex at one point) puts any orbit camera's
+ * eye on its target: refused with a message, not rendered with NaN rays. */
+static void test_camera_around_a_point_is_refused(void)
+{
+    arbor_mesh m;
+    arbor_mesh_init(&m);
+    for (int i = 0; i < 3; i++)
+        arbor_mesh_add_vert(&m, vec3(1, 2, 3), NULL);
+    arbor_mesh_add_tri(&m, 0, 1, 2, 0, NULL);
+    TEST_ASSERT_TRUE(arbor_mesh_finish(&m, NULL));
+    arbor_render_params p;
+    arbor_render_params_init(&p, &m, 32, 24);
+    arbor_err e;
+    TEST_ASSERT_FALSE(arbor_render_params_validate(&p, &e));
+    TEST_ASSERT_NOT_NULL_MESSAGE(strstr(e.msg, "camera.eye"), e.msg);
+    arbor_camera_orbit(&p.camera, m.bounds, 30.0f, 10.0f, 1.5f, 45.0f, 32, 24);
+    TEST_ASSERT_FALSE(arbor_render_params_validate(&p, &e));
+    /* an explicit camera that looks at it is fine */
+    arbor_camera_look_at(&p.camera, vec3(1, 2, 8), vec3(1, 2, 3), vec3(0, 1, 0), 45.0f, 32, 24);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_render_params_validate(&p, &e), e.msg);
+    arbor_mesh_free(&m);
+}
+
 /* MTL Ks is a highlight's colour, not a mirror's (exporters such as
  * Blender write Ks 0.5 on every material): under illum 2 every pixel of the
  * lit quad is Kd's Lambert plus Ks times the Blinn-Phong term (n.h)^Ns,
@@ -1139,6 +1162,7 @@ int main(void)
     UNITY_BEGIN();
     RUN_TEST(test_quad_normals_fill_the_view);
     RUN_TEST(test_quad_shaded_centre_is_lambert);
+    RUN_TEST(test_camera_around_a_point_is_refused);
     RUN_TEST(test_ks_is_a_highlight_under_illum_2);
     RUN_TEST(test_mirror_reflects_the_background);
     RUN_TEST(test_ao_of_an_open_plane_is_white);
