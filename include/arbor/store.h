@@ -89,6 +89,8 @@ void arbor_store_destroy(arbor_store *s);
  * '.': a name is a file name in the models folder, where a leading dot
  * would hide it from the folder's scan (and "." and ".." are not files). */
 bool arbor_model_name_valid(const char *name);
+/* Whether c may be in a model name (and in a file name the folder keeps). */
+bool arbor_model_name_char(char c);
 /* A model file's extensions, in the order a name's files are preferred
  * (arbor_model_file_rank). */
 #define ARBOR_MODEL_NEXTS 4

@@ -9,8 +9,10 @@
  * the files already there that it uses (a material library with the same
  * bytes). DELETE removes only files the record says NAME's upload wrote and
  * that are still those files, and none that another record names: a file
- * the operator put in the folder, or replaced since, is never removed, and
- * no upload writes over a file that is not its own.
+ * the operator put in the folder, or replaced since, is never removed. An
+ * upload's material libraries never write over a file that is not its own
+ * (409); its model file is NAME.EXT, whatever was there, and the name's
+ * files of the other extensions go (an upload of NAME is NAME's model).
  *
  * Every change to the folder happens under its lock (folder_lock_take), an
  * flock(2) on ".arbord.lock" in it, which serialises uploads and deletes

@@ -63,7 +63,7 @@ struct arbor_server {
     job_table *jobs;
     atomic_bool closing;            /* stopping, for the polling thread's answers (no lock there) */
 
-    pthread_mutex_t lock;           /* guards everything down to `inflight` */
+    pthread_mutex_t lock;           /* guards everything below, down to `next_request_id` */
     pthread_cond_t idle;            /* signalled when `inflight` drops to 0 */
     char **pending;                 /* readiness: what is still loading */
     uint32_t npending;
@@ -120,8 +120,6 @@ struct http_req {
  * (and clears the mark). */
 void json_put(cJSON *object, const char *key, cJSON *item);
 void json_push(cJSON *array, cJSON *item);
-/* Whether a cJSON allocation failed on this thread since the last reply. */
-bool json_failed(void);
 
 /* ---- replies (server.c) ---- */
 /* Stores a JSON answer (takes ownership of body). */
@@ -131,6 +129,9 @@ void http_reply_error(http_req *r, unsigned status, const char *code, const char
     __attribute__((format(printf, 4, 5)));
 /* Stores the error an arbor_err maps to (404 not found, 507 no space, ...). */
 void http_reply_err(http_req *r, const arbor_err *e);
+/* Stores resp (taken; NULL: the server's 507 is sent) as the answer, of
+ * `bytes` bytes for the access log, in place of any stored before. */
+void http_reply_response(http_req *r, unsigned status, struct MHD_Response *resp, uint64_t bytes);
 /* Stores a body the response frees with free(). */
 void http_reply_buffer(http_req *r, unsigned status, const char *content_type, void *data, size_t len);
 /* Adds a header to the stored response. */
@@ -143,12 +144,11 @@ void http_suspend(http_req *r);
 /* The worker has replied: resumes the connection and drops its reference. */
 void http_resume(http_req *r);
 void http_req_release(http_req *r);
-/* Hands r to a pool worker: suspends it and queues a job of one task,
- * run(ctx, 0), which must reply and resume r; release(ctx) frees ctx once
- * the job is over. When the job cannot be queued r is answered (507 out of
- * memory, 503 shutting down) and resumed, and ctx released. http_queue is
- * the same for an r already suspended. */
-void http_on_pool(http_req *r, void (*run)(void *ctx, uint32_t task), void (*release)(void *ctx), void *ctx);
+/* Hands r, already suspended (http_suspend), to a pool worker: queues a job
+ * of one task, run(ctx, 0), which must reply and resume r; release(ctx)
+ * frees ctx once the job is over. When the job cannot be queued r is
+ * answered (507 out of memory, 503 shutting down) and resumed, and ctx
+ * released. */
 void http_queue(http_req *r, void (*run)(void *ctx, uint32_t task), void (*release)(void *ctx), void *ctx);
 
 /* ---- helpers (server.c) ---- */

@@ -41,8 +41,9 @@ typedef struct job {
     arbor_bench_row *rows;
     size_t total;
     atomic_bool cancel;
-    double created_ms, started_ms, ended_ms;
+    double created_ms;
     /* protected by the table's lock */
+    double started_ms, ended_ms;
     job_state state;
     size_t done;
     char error[512];

@@ -18,16 +18,6 @@ static const char *const route_names[ROUTE_COUNT] = {
 
 static const char *const reason_names[CANCEL_REASONS] = {"superseded", "timeout", "shutdown", "client_gone"};
 
-const char *route_name(http_route r)
-{
-    return (unsigned)r < ROUTE_COUNT ? route_names[r] : "unknown";
-}
-
-const char *cancel_reason_name(cancel_reason r)
-{
-    return (unsigned)r < CANCEL_REASONS ? reason_names[r] : "?";
-}
-
 void metrics_init(http_metrics *m)
 {
     memset(m, 0, sizeof *m);

@@ -70,9 +70,6 @@ typedef struct {
     uint32_t models;
 } metrics_gauges;
 
-const char *route_name(http_route r);
-const char *cancel_reason_name(cancel_reason r);
-
 void metrics_init(http_metrics *m);
 void metrics_destroy(http_metrics *m);
 void metrics_request(http_metrics *m, http_route route, unsigned status, double seconds);

@@ -112,10 +112,7 @@ static bool safe_base_name(const char *filename, char *out, size_t cap)
     base = base != NULL ? base + 1 : filename;
     size_t n = 0;
     for (const char *p = base; *p != '\0' && n + 1 < cap; p++) {
-        char c = *p;
-        bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' ||
-                  c == '_' || c == '-';
-        out[n++] = ok ? c : '_';
+        out[n++] = arbor_model_name_char(*p) ? *p : '_';
     }
     out[n] = '\0';
     return n > 0 && out[0] != '.';
@@ -268,7 +265,7 @@ static bool sniff_model(http_req *r, const char *path, uint64_t max, bool *ply, 
 {
     gzFile g = gzopen(path, "rb");
     if (g == NULL) {
-        http_reply_error(r, 507, "insufficient_memory", "cannot read the stored upload");
+        http_reply_error(r, 507, "insufficient_storage", "cannot read the stored upload: %s", strerror(errno));
         return false;
     }
     *gz = gzdirect(g) == 0;
@@ -320,7 +317,7 @@ static bool name_put_body(http_req *r, const char *name)
     snprintf(u->model, sizeof u->model, "%s.%s%s", name, ply ? "ply" : "obj", gz ? ".gz" : "");
     snprintf(to, sizeof to, "%s/%s", u->dir, u->model);
     if (rename(from, to) != 0) {
-        http_reply_error(r, 507, "insufficient_memory", "cannot rename the stored upload");
+        http_reply_error(r, 507, "insufficient_storage", "cannot rename the stored upload: %s", strerror(errno));
         return false;
     }
     return true;

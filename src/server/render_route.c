@@ -38,7 +38,7 @@ struct render_req {
     arbor_model *model;
     arbor_tree *tree;
     arbor_frame *frame;
-    atomic_int refs;              /* the answer path, and a pending build's callback */
+    atomic_int refs;              /* the answer path, route_render while it runs, a pending build's callback */
     double admitted_ms, tree_ms, submitted_ms;
     int fd;                       /* the client's socket, open while rr is suspended; -1: unknown */
     /* protected by srv->lock */
@@ -396,8 +396,9 @@ static cJSON *request_fields(http_req *r)
     return q.obj;
 }
 
-/* Reads and checks the request; the model it names (a reference) or NULL
- * with the reply made. */
+/* Reads and checks the request into *spec and *params, and the model it
+ * names into *model (a reference): true, or false with the reply made or r
+ * suspended while the model loads (http.h). */
 bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_params *params,
                          arbor_model **model)
 {

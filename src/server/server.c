@@ -45,11 +45,6 @@ static void *json_malloc(size_t n)
     return p;
 }
 
-bool json_failed(void)
-{
-    return json_oom;
-}
-
 void json_put(cJSON *object, const char *key, cJSON *item)
 {
     if (!cJSON_AddItemToObject(object, key, item)) {
@@ -70,7 +65,7 @@ void json_push(cJSON *array, cJSON *item)
 
 #define OOM_BODY "{\"error\":{\"code\":\"insufficient_memory\",\"message\":\"out of memory\"}}\n"
 
-static void reply_response(http_req *r, unsigned status, struct MHD_Response *resp, size_t bytes)
+void http_reply_response(http_req *r, unsigned status, struct MHD_Response *resp, uint64_t bytes)
 {
     if (r->response != NULL)
         MHD_destroy_response(r->response);
@@ -85,11 +80,11 @@ void http_reply_buffer(http_req *r, unsigned status, const char *content_type, v
     if (resp == NULL) {
         /* No response: queue_reply sends the server's 507. */
         free(data);
-        reply_response(r, MHD_HTTP_INSUFFICIENT_STORAGE, NULL, sizeof OOM_BODY - 1);
+        http_reply_response(r, MHD_HTTP_INSUFFICIENT_STORAGE, NULL, sizeof OOM_BODY - 1);
         return;
     }
     MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, content_type);
-    reply_response(r, status, resp, len);
+    http_reply_response(r, status, resp, len);
 }
 
 void http_reply_json(http_req *r, unsigned status, cJSON *body)
@@ -102,7 +97,7 @@ void http_reply_json(http_req *r, unsigned status, cJSON *body)
         free(text);
         /* Out of memory making the body (or the body's JSON was never
          * built, for the same reason): the server's 507. */
-        reply_response(r, MHD_HTTP_INSUFFICIENT_STORAGE, NULL, sizeof OOM_BODY - 1);
+        http_reply_response(r, MHD_HTTP_INSUFFICIENT_STORAGE, NULL, sizeof OOM_BODY - 1);
         return;
     }
     size_t len = strlen(text);
@@ -205,12 +200,6 @@ void http_queue(http_req *r, void (*run)(void *ctx, uint32_t task), void (*relea
     arbor_job_release(job);
 }
 
-void http_on_pool(http_req *r, void (*run)(void *ctx, uint32_t task), void (*release)(void *ctx), void *ctx)
-{
-    http_suspend(r);
-    http_queue(r, run, release, ctx);
-}
-
 const char *http_arg(http_req *r, const char *key)
 {
     return MHD_lookup_connection_value(r->conn, MHD_GET_ARGUMENT_KIND, key);
@@ -222,6 +211,7 @@ typedef struct {
     const char *known;
     const char *unknown;                 /* the first key not in known */
     const char *twice;                   /* the first key given twice */
+    const char *bare;                    /* the first key given without '=' and a value */
     const char *seen[ARGS_KNOWN_MAX];    /* the keys so far, each once */
     uint32_t nseen;
 } args_check;
@@ -229,7 +219,6 @@ typedef struct {
 static enum MHD_Result arg_known(void *cls, enum MHD_ValueKind kind, const char *key, const char *value)
 {
     (void)kind;
-    (void)value;
     args_check *c = cls;
     size_t n = strlen(key);
     bool plain = n > 0 && strcspn(key, ", ") == n; /* a key holding a separator would match across two */
@@ -248,6 +237,10 @@ static enum MHD_Result arg_known(void *cls, enum MHD_ValueKind kind, const char 
         }
     assert(c->nseen < ARGS_KNOWN_MAX); /* known names fewer keys, each seen once */
     c->seen[c->nseen++] = key;
+    if (value == NULL) {
+        c->bare = key; /* "?replace" would read as absent: false, not the true it looks like */
+        return MHD_NO;
+    }
     return MHD_YES;
 }
 
@@ -262,7 +255,9 @@ bool http_args_known(http_req *r, const char *known)
         http_reply_error(r, 400, "bad_request", "unknown query parameter '%s' (%s)", c.unknown, known);
     else if (c.twice != NULL)
         http_reply_error(r, 400, "bad_request", "%s is given twice", c.twice);
-    return c.unknown == NULL && c.twice == NULL;
+    else if (c.bare != NULL)
+        http_reply_error(r, 400, "bad_request", "%s needs a value (%s=...)", c.bare, c.bare);
+    return c.unknown == NULL && c.twice == NULL && c.bare == NULL;
 }
 
 bool http_arg_flag(http_req *r, const char *key, bool *ok)
@@ -903,7 +898,7 @@ static void *reaper_run(void *arg)
     pthread_mutex_lock(&s->lock);
     while (!s->stopping) {
         struct timespec until;
-        clock_gettime(CLOCK_REALTIME, &until);
+        clock_gettime(CLOCK_MONOTONIC, &until);
         until.tv_nsec += REAPER_PERIOD_MS * 1000000L;
         if (until.tv_nsec >= 1000000000L) {
             until.tv_sec++;
@@ -1028,7 +1023,13 @@ arbor_server *arbor_server_start(const arbor_server_config *c, arbor_store *stor
     metrics_init(&s->metrics);
     pthread_mutex_init(&s->lock, NULL);
     pthread_cond_init(&s->idle, NULL);
-    pthread_cond_init(&s->reaper_wake, NULL);
+    /* the reaper's waits by the monotonic clock: a step of the wall clock
+     * must not hold frame timeouts off */
+    pthread_condattr_t monotonic;
+    pthread_condattr_init(&monotonic);
+    pthread_condattr_setclock(&monotonic, CLOCK_MONOTONIC);
+    pthread_cond_init(&s->reaper_wake, &monotonic);
+    pthread_condattr_destroy(&monotonic);
     /* cJSON allocates through json_malloc, which notes failures (see http.h). */
     cJSON_Hooks hooks = {json_malloc, free};
     cJSON_InitHooks(&hooks);

@@ -18,6 +18,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "arbor/sys.h"
 #include "http.h"
 #include "static.h"
 
@@ -48,13 +49,10 @@ static const char *content_type(const char *path)
     return "application/octet-stream";
 }
 
-/* The real path of want in out, when it exists and lies in root. */
+/* The real path of want in out, when it exists and is root or lies in it. */
 static bool real_inside(const char *root, const char *want, char *out)
 {
-    if (realpath(want, out) == NULL)
-        return false;
-    size_t len = strlen(root);
-    return strncmp(out, root, len) == 0 && (out[len] == '/' || out[len] == '\0');
+    return realpath(want, out) != NULL && (strcmp(out, root) == 0 || arbor_real_path_inside(out, root));
 }
 
 bool static_resolve(const char *web_dir, const char *path, char *out)
@@ -106,11 +104,7 @@ void route_static(http_req *r, const char *path)
             return;
         }
         MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, content_type(file));
-        if (r->response != NULL)
-            MHD_destroy_response(r->response);
-        r->response = resp;
-        r->status = 200;
-        r->bytes = (uint64_t)st.st_size;
+        http_reply_response(r, 200, resp, (uint64_t)st.st_size);
     }
     http_reply_header(r, MHD_HTTP_HEADER_ETAG, etag);
     http_reply_header(r, MHD_HTTP_HEADER_CACHE_CONTROL, "no-cache");

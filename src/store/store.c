@@ -23,7 +23,6 @@
 #include <strings.h>
 
 #include "arbor/store.h"
-#include "arbor/sys.h"
 
 typedef struct waiter {
     arbor_tree_ready_fn fn;
@@ -121,7 +120,7 @@ uint64_t arbor_mesh_bytes(const arbor_mesh *m)
     return b;
 }
 
-static bool name_char(char c)
+bool arbor_model_name_char(char c)
 {
     return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' || c == '_' ||
            c == '-';
@@ -133,7 +132,7 @@ bool arbor_model_name_valid(const char *name)
     if (n < 1 || n > ARBOR_MODEL_NAME_MAX || name[0] == '.')
         return false;
     for (size_t i = 0; i < n; i++)
-        if (!name_char(name[i]))
+        if (!arbor_model_name_char(name[i]))
             return false;
     return true;
 }
@@ -161,7 +160,7 @@ bool arbor_model_name_of_file(const char *file, char *name, size_t cap)
         return false;
     size_t stem = strlen(file) - strlen(arbor_model_exts[ext]), len = stem < cap ? stem : 0;
     for (size_t j = 0; j < len; j++)
-        name[j] = name_char(file[j]) ? file[j] : '_';
+        name[j] = arbor_model_name_char(file[j]) ? file[j] : '_';
     name[len] = '\0';
     return true;
 }
@@ -175,7 +174,7 @@ int arbor_model_file_rank(const char *file)
     if (strcmp(file + stem, arbor_model_exts[ext]) != 0)
         return ext + ARBOR_MODEL_NEXTS; /* NAME.OBJ is not the file NAME.obj */
     for (size_t j = 0; j < stem; j++)
-        if (!name_char(file[j]))
+        if (!arbor_model_name_char(file[j]))
             return ext + ARBOR_MODEL_NEXTS;
     return ext;
 }

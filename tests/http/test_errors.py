@@ -56,6 +56,13 @@ CASES = [
      400, "bad_request", ["depth", "twice"]),
     ("stats_query_key_twice", "main", "GET", "/api/stats?model=cornell&model=sphere", None,
      400, "bad_request", ["model", "twice"]),
+    # a key without '=' would read as absent (?replace as false): named, not ignored
+    ("stats_query_key_bare", "main", "GET", "/api/stats?model=cornell&accel", None,
+     400, "bad_request", "accel needs a value"),
+    ("boxes_query_key_bare", "main", "GET", "/api/models/cornell/trees/bvh/sah/boxes?depth", None,
+     400, "bad_request", "depth needs a value"),
+    ("upload_query_key_bare", "main", "PUT", "/api/models/bare?replace", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+     400, "bad_request", "replace needs a value"),
     ("unknown_query_param", "main", "GET", "/api/render?model=cornell&width=16&height=12&colour=red", None,
      400, "bad_request", "colour"),
     # a query parameter a route does not take is a 400 naming it, never ignored (the refused PUT
