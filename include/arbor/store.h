@@ -124,6 +124,11 @@ bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, a
                            uint64_t *version, arbor_err *e);
 /* Detaches a model; ARBOR_ERR_NOT_FOUND when there is none of that name. */
 bool arbor_store_remove_model(arbor_store *s, const char *name, arbor_err *e);
+/* Detaches m (held by the caller) if it is still its name's model:
+ * ARBOR_ERR_NOT_FOUND, and nothing changed, when it was removed or replaced
+ * meanwhile. A check of m and a remove by name would detach a replacement
+ * added between them. */
+bool arbor_store_remove_this_model(arbor_store *s, const arbor_model *m, arbor_err *e);
 
 /* A reference to the named model, or NULL. */
 arbor_model *arbor_store_acquire_model(arbor_store *s, const char *name);

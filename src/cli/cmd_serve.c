@@ -345,13 +345,15 @@ static void load_one(arbor_server *server, arbor_store *store, const char *dir, 
         uint32_t ntris = mesh.ntris;
         for (uint32_t w = 0; w < mesh.nwarnings; w++)
             fprintf(stderr, "arbord: %s: warning: %s\n", path, mesh.warnings[w]);
-        if (!arbor_store_add_model(store, name, real != NULL ? real : path, &mesh, 0, NULL, &err)) {
+        uint64_t version = 0;
+        if (!arbor_store_add_model(store, name, real != NULL ? real : path, &mesh, 0, &version, &err)) {
             fprintf(stderr, "arbord: skipping %s: %s\n", path, err.msg);
             arbor_mesh_free(&mesh);
         } else {
             fprintf(stderr, "arbord: loaded %s (%u triangles) in %.0f ms\n", name, ntris, arbor_now_ms() - t0);
+            /* the model added, not one an upload put in its place meanwhile */
             arbor_model *m = arbor_store_acquire_model(store, name);
-            if (m != NULL) {
+            if (m != NULL && arbor_model_version(m) == version) {
                 arbor_model_set_stamp(m, stamp);
                 prebuild_model(server, store, m, p);
             }

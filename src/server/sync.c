@@ -403,10 +403,7 @@ static void unload(arbor_server *s, arbor_model *m)
     arbor_err err;
     /* Only the model that was checked: one added meanwhile (an upload here)
      * has a file, and the next request sees it. */
-    arbor_model *now = arbor_store_acquire_model(s->store, arbor_model_name(m));
-    if (now == m)
-        arbor_store_remove_model(s->store, arbor_model_name(m), &err);
-    arbor_model_release(now);
+    arbor_store_remove_this_model(s->store, m, &err);
 }
 
 /* Acts on compare's verdict for one name whose model in the store is m:

@@ -475,7 +475,8 @@ bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, a
     return ok;
 }
 
-bool arbor_store_remove_model(arbor_store *s, const char *name, arbor_err *e)
+/* Detaches model `name`, if it is `only` when that is not NULL. */
+static bool remove_model(arbor_store *s, const char *name, const arbor_model *only, arbor_err *e)
 {
     dropped d;
     pthread_mutex_lock(&s->lock);
@@ -483,12 +484,24 @@ bool arbor_store_remove_model(arbor_store *s, const char *name, arbor_err *e)
     uint32_t at = table_find(s, name, &found);
     if (ok && !found)
         ok = arbor_fail(e, ARBOR_ERR_NOT_FOUND, "no model named '%s'", name);
+    if (ok && only != NULL && s->models[at] != only)
+        ok = arbor_fail(e, ARBOR_ERR_NOT_FOUND, "model '%s' was replaced", name);
     if (ok)
         model_detach(s, at, &d);
     pthread_mutex_unlock(&s->lock);
     if (d.trees != NULL)
         dropped_release(&d);
     return ok;
+}
+
+bool arbor_store_remove_model(arbor_store *s, const char *name, arbor_err *e)
+{
+    return remove_model(s, name, NULL, e);
+}
+
+bool arbor_store_remove_this_model(arbor_store *s, const arbor_model *m, arbor_err *e)
+{
+    return remove_model(s, arbor_model_name(m), m, e);
 }
 
 arbor_model *arbor_store_acquire_model(arbor_store *s, const char *name)

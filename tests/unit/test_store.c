@@ -385,8 +385,15 @@ static void test_exists_without_replace_and_version_on_replace(void)
     TEST_ASSERT_EQUAL_INT(ARBOR_ERR_NOT_FOUND, e.status);
     TEST_ASSERT_NULL(t);
     assert_usage(s, arbor_model_bytes(old) + arbor_model_bytes(now), 0);
+    /* removing the model that was checked does not remove its replacement */
+    assert_failed(arbor_store_remove_this_model(s, old, &e), &e, ARBOR_ERR_NOT_FOUND);
+    arbor_model *still = arbor_store_acquire_model(s, "m");
+    TEST_ASSERT_TRUE(still == now);
+    arbor_model_release(still);
     arbor_model_release(old);
     assert_usage(s, arbor_model_bytes(now), 0);
+    TEST_ASSERT_TRUE_MESSAGE(arbor_store_remove_this_model(s, now, &e), e.msg);
+    TEST_ASSERT_NULL(arbor_store_acquire_model(s, "m"));
     arbor_model_release(now);
     arbor_mesh_free(&mesh);
     arbor_store_destroy(s);
