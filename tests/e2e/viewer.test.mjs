@@ -109,8 +109,9 @@ test('switching to kd / sah / heat shows the stats and the legend', T, async () 
         const legendScale = Number(await page.$eval('#legend .legend-row', (r) => r.dataset.heatScale));
         assert.equal(legendScale, scale);
         const ticks = await page.$$eval('#legend .legend-ticks span', (s) => s.map((e) => e.textContent));
-        assert.equal(ticks.length, 6);
+        assert.ok(ticks.length >= 3, JSON.stringify(ticks));
         assert.equal(ticks[0], '0');
+        assert.equal(ticks.at(-1), `${Math.round(scale)}+`);
         await screenshot(page, 'kd-sah-heat');
         assert.deepEqual(errors, []);
     });
@@ -133,7 +134,8 @@ test('the depth slider draws boxes whose root box, projected, encloses the rende
             if (!(await page.isChecked('#boxes-on'))) await page.check('#boxes-on');
             await page.fill('#depth', '0');
             await page.dispatchEvent('#depth', 'input');
-            await page.waitForFunction(() => /box/.test(document.getElementById('boxes-info').textContent) ||
+            // "1 box at depth 0", not "loading boxes…"
+            await page.waitForFunction(() => /\d box/.test(document.getElementById('boxes-info').textContent) ||
                 document.getElementById('boxes-info').classList.contains('error'), null, { timeout: 30000 });
             const info = await page.textContent('#boxes-info');
             assert.doesNotMatch(info, /does not serve|failed/, info);
@@ -469,11 +471,11 @@ test('split view, its stats and the ray inspector fit their cards at 1400, 1920 
         const bytes = await page.$$eval('#stats-table tr[data-key="bytes"] td', (tds) => tds.map((td) => td.textContent.trim()));
         assert.match(bytes[0], /MiB$/);
         assert.match(bytes[1], /MiB$/);
-        // the heat legend's numbers stay apart in the narrow card
+        // the heat legend's numbers stay apart in the narrow card (one bar: the panes share a scale)
         await page.setViewportSize({ width: 1400, height: 900 });
         await page.selectOption('#mode', 'heat');
         await page.waitForFunction(() => [...document.querySelectorAll('#legend .legend-row')]
-            .filter((r) => r.dataset.heatScale !== '').length === 2, null, { timeout: 60000 });
+            .filter((r) => r.dataset.heatScale !== '' && r.dataset.pane === '0 1').length === 1, null, { timeout: 60000 });
         await screenshot(page, 'split-heat-legend');
         const rows = await page.$$eval('#legend .legend-ticks', (ts) => ts.map((t) => [...t.children].map((s) => {
             const r = s.getBoundingClientRect();

@@ -105,8 +105,9 @@ async function call(what, url, init = {}, auth = false) {
     return res;
 }
 
-export async function getJSON(what, url) {
-    const res = await call(what, url);
+/** init.signal aborts it. */
+export async function getJSON(what, url, init = {}) {
+    const res = await call(what, url, init);
     return res.json();
 }
 
@@ -135,12 +136,13 @@ export function treeStats(model, accel, builder) {
     });
 }
 
-export function treeBoxes(model, accel, builder, depth, kind) {
+/** The boxes of a tree at a depth (kind: 'depth', 'all' or 'leaves'); init.signal aborts the request. */
+export function treeBoxes(model, accel, builder, depth, kind, init = {}) {
     let q = `depth=${depth}`;
     if (kind === 'leaves') q += '&leaves=1';
     if (kind === 'all') q += '&all=1';
     return getJSON(`Reading the ${accel} ${builder} boxes at depth ${depth}`,
-        `/api/models/${enc(model)}/trees/${enc(accel)}/${enc(builder)}/boxes?${q}`);
+        `/api/models/${enc(model)}/trees/${enc(accel)}/${enc(builder)}/boxes?${q}`, init);
 }
 
 export const traceRay = (req) => postJSON(`Tracing the ray through pixel (${req.x}, ${req.y})`, '/api/ray', req);

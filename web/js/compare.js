@@ -33,6 +33,8 @@ export const CHARTS = [
 const esc = (s) => String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
 const treeLabel = (a, b) => `${a === 'kd' ? 'k-d' : 'BVH'} ${b}`;
 const $ = (id) => document.getElementById(id);
+// how a daemon built without Embree fails a job that asks for it (API.md: "an error that says so"); it says so nowhere else
+const NO_EMBREE = /without Embree/i;
 
 export class Compare {
     constructor(app) {
@@ -44,10 +46,32 @@ export class Compare {
         $('cmp-cancel').addEventListener('click', () => this.cancel());
     }
 
-    /** The viewer's model changed: its charts, unless a job's are being drawn (they stay until it ends). */
+    /** The viewer's model changed: its charts and no status, unless a job's are being drawn (they stay until it ends). */
     modelChanged() {
+        if (this.job) return;
+        // the last run's progress and error were another model's
+        $('cmp-progress-wrap').hidden = true;
+        this.setError('');
+        this.showCharts();
+    }
+
+    /** The charts of the viewer's model's last finished run, or none. */
+    showCharts() {
         const m = this.app.state.model;
-        if (!this.job) this.draw(m, this.results.get(m) || null);
+        this.draw(m, this.results.get(m) || null);
+    }
+
+    /** The daemon has no Embree, as a job that asked for it said (why: its words): Embree is no longer offered. */
+    noEmbree(why) {
+        const peer = $('cmp-peer');
+        for (const o of peer.options) {
+            o.disabled = o.value !== '';
+            o.title = o.disabled ? why : '';
+        }
+        peer.value = '';
+        const note = $('cmp-peer-why');
+        note.textContent = `Embree: ${why}`;
+        note.hidden = false;
     }
 
     setError(text) {
@@ -105,8 +129,9 @@ export class Compare {
             this.results.set(job.model, j.rows || []);
             this.finish();
             $('cmp-progress-text').textContent = `done: ${(j.rows || []).length} rows in ${secs} s`;
-            this.modelChanged();
+            this.showCharts();
         } else if (j.state === 'failed' || j.state === 'cancelled') {
+            if (job.peer && j.state === 'failed' && NO_EMBREE.test(j.error || '')) this.noEmbree(j.error);
             const run = this.results.has(job.model) ? 'The re-run of the benchmark' : 'The benchmark';
             this.ended(job, j.state === 'failed'
                 ? `${run} of ${job.model} failed: ${j.error || 'the daemon gave no reason'}.`
@@ -145,7 +170,7 @@ export class Compare {
         if (job.model !== this.app.state.model) {
             // the viewer moved on to another model meanwhile: its charts
             this.fail(text);
-            this.modelChanged();
+            this.showCharts();
             return;
         }
         const last = this.results.get(job.model);

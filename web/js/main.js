@@ -15,6 +15,8 @@ const BUILDERS = ['spatial', 'median', 'mean', 'sah'];
 const MODES = ['shaded', 'normals', 'depth', 'ao', 'heat'];
 const SPPS = [1, 4, 9, 16, 64];
 const REST_MS = 180;
+// the depth slider's boxes are asked for once it rests this long: dragged across depths, it asks for one depth's
+const DEPTH_REST_MS = 120;
 // samples a request may cost: the daemon's default --max-pixels, until GET /api/stats gives its own; a 400
 // naming a smaller one (another node behind a balancer) lowers it
 const MAX_SAMPLES = 16777216;
@@ -103,7 +105,12 @@ class App {
         this.restTimer = 0;
         this.urlTimer = 0;
         this.rayInspect = null;
+        this.rayShown = undefined; // the rayInspect the ray panel shows: it is rebuilt only for another
         this.rayToken = 0;
+        this.heatMeasure = null;   // {key, promise, controller, users}: the heat scale being measured (heatScale)
+        this.depthTimer = 0;
+        // a second tree the URL or the user chose is kept while split view is off
+        this.splitChosen = this.state.split.on;
         this.drawQueued = false;
         this.maxSamples = MAX_SAMPLES;
         this.dark = matchMedia('(prefers-color-scheme: dark)');
@@ -233,6 +240,34 @@ class App {
         this.compare.modelChanged();
     }
 
+    /**
+     * The top of the heat colour scale for frames of the views `reqs` (render
+     * requests): the largest of their 99th percentiles at 1 spp. Frames that
+     * ask for the same views share one measurement, aborted once no frame
+     * waits for it (signal: the asking frame's).
+     */
+    heatScale(reqs, signal) {
+        const views = reqs.map((r) => ({ ...r, spp: 1 }));
+        const key = JSON.stringify(views);
+        let m = this.heatMeasure;
+        if (!m || m.key !== key) {
+            const controller = new AbortController();
+            m = { key, controller, users: 0 };
+            m.promise = Promise.all(views.map((v) => api.renderJSON(v, { signal: controller.signal })))
+                .then((all) => Math.max(...all.map((j) => j.heat_scale)));
+            // a failed measurement is asked for again by the next frame
+            m.promise.catch(() => { if (this.heatMeasure === m) this.heatMeasure = null; });
+            this.heatMeasure = m;
+        }
+        m.users++;
+        signal.addEventListener('abort', () => {
+            if (--m.users > 0) return;
+            m.controller.abort();
+            if (this.heatMeasure === m) this.heatMeasure = null;
+        }, { once: true });
+        return m.promise;
+    }
+
     /** The daemon renders at most n samples per request (its --max-pixels): frames are split by that. */
     setMaxSamples(n) {
         this.maxSamples = n;
@@ -277,7 +312,9 @@ class App {
         $('depth').addEventListener('input', (e) => {
             s.boxes.depth = Number(e.target.value);
             $('depth-out').textContent = e.target.value;
-            this.changed({ boxes: true, noFrame: true });
+            this.changed({ noFrame: true });
+            clearTimeout(this.depthTimer);
+            this.depthTimer = setTimeout(() => this.loadBoxes(), DEPTH_REST_MS);
         });
         $('boxes-all').addEventListener('change', (e) => {
             s.boxes.all = e.target.checked;
@@ -291,7 +328,7 @@ class App {
         });
         $('split-on').addEventListener('change', (e) => {
             s.split.on = e.target.checked;
-            if (s.split.on && !new URLSearchParams(location.search).get('split')) {
+            if (s.split.on && !this.splitChosen) {
                 // the natural comparison: the other kind, same builder
                 s.split.accel = s.accel === 'bvh' ? 'kd' : 'bvh';
                 s.split.builder = s.builder;
@@ -300,8 +337,13 @@ class App {
             this.rebuildPanes();
             this.changed({ boxes: true });
         });
-        $('accel2').addEventListener('change', (e) => { s.split.accel = e.target.value; this.changed({ boxes: true }); });
-        $('builder2').addEventListener('change', (e) => { s.split.builder = e.target.value; this.changed({ boxes: true }); });
+        for (const [id, key] of [['accel2', 'accel'], ['builder2', 'builder']]) {
+            $(id).addEventListener('change', (e) => {
+                s.split[key] = e.target.value;
+                this.splitChosen = true;
+                this.changed({ boxes: true });
+            });
+        }
         $('tab-view').addEventListener('click', () => this.showTab('view'));
         $('tab-compare').addEventListener('click', () => this.showTab('compare'));
         document.addEventListener('keydown', (e) => {
@@ -311,6 +353,10 @@ class App {
             if ((e.key === 'r' || e.key === 'R') && this.state.tab === 'view') {
                 e.preventDefault();
                 this.resetView();
+            }
+            if (e.key === 'Escape' && this.rayInspect && this.state.tab === 'view') {
+                e.preventDefault();
+                this.dismissRay();
             }
         });
         window.addEventListener('resize', () => this.scheduleDraw());
@@ -456,14 +502,18 @@ class App {
     drawPanels() {
         renderStats($('stats'), this);
         renderLegend($('legend'), $('legend-bars'), this);
-        renderRay($('ray-panel'), this);
+        // rebuilt only for another ray: a rebuild would drop the focus and scroll of the panel's list and button
+        if (this.rayShown !== this.rayInspect) {
+            renderRay($('ray-panel'), this);
+            this.rayShown = this.rayInspect;
+        }
         this.boxesInfo();
-        const stats = this.panes[0] && this.panes[0].stats;
-        // the boxes are those of the tree rays traverse: a BVH's wide tree, a k-d tree's own
-        const st = stats && (stats.wide || stats);
-        if (st && Number.isInteger(st.max_depth)) {
+        // the boxes are those of the tree rays traverse: a BVH's wide tree, a k-d tree's own; in split view the
+        // slider reaches the deeper pane's depth (the shallower shows nothing past its own)
+        const depths = this.panes.map((p) => p.stats && (p.stats.wide || p.stats).max_depth).filter(Number.isInteger);
+        if (depths.length) {
             const depth = $('depth');
-            const max = Math.max(st.max_depth, this.state.boxes.depth);
+            const max = Math.max(...depths, this.state.boxes.depth);
             if (Number(depth.max) !== max) depth.max = String(max);
         }
         for (const p of this.panes) p.drawOverlay();
@@ -506,6 +556,13 @@ class App {
         this.rayInspect = r;
         pane.ray = r.data ? { req, data: r.data } : null;
         this.scheduleDraw();
+    }
+
+    /** The ray panel's Clear, or Escape: the ray goes and the focus returns to its frame (not to the page, with the button). */
+    dismissRay() {
+        const pane = this.panes[this.rayInspect.pane] || this.panes[0];
+        this.clearRay();
+        pane.frame.focus();
     }
 
     clearRay() {

@@ -2,13 +2,15 @@
 
 const esc = (s) => String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
 
+/** The decimals a number of magnitude a is shown with: `digits`, fewer from 100 up. */
+const decimals = (a, digits) => (a >= 1000 ? 0 : a >= 100 ? 1 : digits);
+const fixed = (v, d) => v.toLocaleString('en-US', { minimumFractionDigits: d, maximumFractionDigits: d });
+
 export function fmt(v, digits = 2) {
     if (v === null || v === undefined || Number.isNaN(v)) return '—';
     if (typeof v !== 'number') return esc(v);
     if (Number.isInteger(v)) return v.toLocaleString('en-US');
-    const a = Math.abs(v);
-    const d = a >= 1000 ? 0 : a >= 100 ? 1 : digits;
-    return v.toLocaleString('en-US', { minimumFractionDigits: d, maximumFractionDigits: d });
+    return fixed(v, decimals(Math.abs(v), digits));
 }
 
 /** "1 triangle", "3,152 triangles". */
@@ -84,7 +86,39 @@ export function renderStats(el, app) {
     el.innerHTML = html;
 }
 
-/** Heat legend: the renderer's colour ramp with numbers from X-Heat-Scale. */
+/**
+ * The heat legend's ticks for scale s: [fraction of the bar, label]. Round
+ * values (multiples of 1, 2 or 5 times a power of ten, about a fifth of s
+ * apart), none so near the end that it crowds the end's label: s itself,
+ * where white begins.
+ */
+export function heatTicks(s) {
+    if (!(s > 0)) return [[0, '0'], [1, '?']];
+    const raw = s / 5, pow = 10 ** Math.floor(Math.log10(raw));
+    const step = [1, 2, 5, 10].map((m) => m * pow).find((v) => v >= raw * (1 - 1e-9));
+    const digits = Math.max(0, -Math.floor(Math.log10(step) + 1e-9));
+    // whole numbers from 10 up, thousands from 10,000: longer ones crowd the ticks of a narrow card
+    const label = (v, d) => (v === 0 ? '0' : s >= 1e4 ? `${fmt(v / 1e3, 1)}k` : fmt(v, d));
+    const ticks = [];
+    for (let k = 0; k * step <= 0.85 * s; k++) {
+        const v = Number((k * step).toFixed(digits));
+        ticks.push([v / s, label(v, digits)]);
+    }
+    ticks.push([1, `${label(s < 10 ? s : Math.round(s), 1)}+`]);
+    return ticks;
+}
+
+/** One bar of the heat legend, for the panes `panes` whose frames share scale s; title: the panes named above it. */
+function legendRow(panes, s, title) {
+    const ticks = heatTicks(s).map(([f, text]) => `<span style="left:${f * 100}%">${text}</span>`).join('');
+    return `<div class="legend-row" data-pane="${panes.map((p) => p.index).join(' ')}" data-heat-scale="${s ?? ''}">
+        ${title ? `<div class="small">${title}</div>` : ''}
+        <div class="legend-bar" role="img" aria-label="Colour scale from blue at 0 through cyan, green, yellow and red to white at ${s ?? 'unknown'} node steps plus triangle tests per pixel"></div>
+        <div class="legend-ticks">${ticks}</div>
+      </div>`;
+}
+
+/** Heat legend: the renderer's colour ramp with numbers from X-Heat-Scale; one bar for split panes sharing a scale. */
 export function renderLegend(el, bars, app) {
     const panes = app.panes.filter((p) => p.shown && p.shown.req.mode === 'heat');
     if (app.state.mode !== 'heat' || panes.length === 0) {
@@ -93,18 +127,17 @@ export function renderLegend(el, bars, app) {
         return;
     }
     el.hidden = false;
-    bars.innerHTML = panes.map((p) => {
-        const s = p.shown.heatScale;
-        // whole numbers from 10 up, thousands from 10,000: longer ones crowd the ticks of a narrow card
-        const tick = (v) => (v === 0 ? '0' : s < 10 ? fmt(v, 1) : s < 1e4 ? fmt(Math.round(v)) : `${fmt(v / 1e3, 1)}k`);
-        const ticks = [0, 0.2, 0.4, 0.6, 0.8, 1].map((f) =>
-            `<span style="left:${f * 100}%">${s === null || s === undefined ? '?' : tick(f * s)}${f === 1 ? '+' : ''}</span>`).join('');
-        return `<div class="legend-row" data-pane="${p.index}" data-heat-scale="${s ?? ''}">
-            ${app.panes.length > 1 ? `<div class="small">${esc(treeLabel(p.tree()))}${p.shown.quick ? ' (quick frame)' : ''}</div>` : ''}
-            <div class="legend-bar" role="img" aria-label="Colour scale from blue at 0 through cyan, green, yellow and red to white at ${s ?? 'unknown'} node steps plus triangle tests per pixel"></div>
-            <div class="legend-ticks">${ticks}</div>
-          </div>`;
-    }).join('') + '<p class="muted small">White: at or above the scale (the frame\'s 99th percentile). Blue: rays that cost nothing.</p>';
+    const name = (p) => `${esc(treeLabel(p.tree()))}${p.shown.quick ? ' (quick frame)' : ''}`;
+    const scale = panes[0].shown.heatScale;
+    const shared = app.panes.length > 1 && panes.length === app.panes.length && panes.every((p) => p.shown.heatScale === scale);
+    if (shared) {
+        bars.innerHTML = legendRow(panes, scale, `Shared by both panes: ${panes.map(name).join(' and ')}`) +
+            '<p class="muted small">One scale for both panes, the larger of their frames\' 99th percentiles (at 1 spp), so a colour is the same cost in each. ' +
+            'White: at or above it. Blue: rays that cost nothing.</p>';
+        return;
+    }
+    bars.innerHTML = panes.map((p) => legendRow([p], p.shown.heatScale, app.panes.length > 1 ? name(p) : '')).join('') +
+        '<p class="muted small">White: at or above the scale (the frame\'s 99th percentile). Blue: rays that cost nothing.</p>';
 }
 
 /** The inspected ray: hit, counts, heat at the pixel, and every step in visiting order. */
@@ -129,7 +162,12 @@ export function renderRay(el, app) {
     const d = r.data, steps = d.steps || [], counts = d.counts || {};
     const leaves = steps.filter((s) => s.leaf).length;
     const tested = steps.reduce((a, s) => a + (s.tris || 0), 0);
-    const v3 = (v) => (v ? `(${v.map((x) => fmt(x, 3)).join(', ')})` : '—');
+    // every component to one precision, that of the largest: (0.292, 0.000, 0.956), where fmt prints whole ones bare
+    const v3 = (v) => {
+        if (!v) return '—';
+        const d = decimals(Math.max(...v.map(Math.abs)), 3);
+        return `(${v.map((x) => fixed(x, d)).join(', ')})`;
+    };
     let html = `<p class="small">${where}</p>`;
     html += `<table class="kv" id="ray-counts" data-nodes="${counts.nodes ?? ''}" data-tris="${counts.tris ?? ''}"><tbody>`;
     html += `<tr><th scope="row">Node steps</th><td class="ray-nodes">${fmt(counts.nodes)}</td></tr>`;
@@ -165,5 +203,5 @@ export function renderRay(el, app) {
     html += '<p class="muted small">Drawn over the frame: inner boxes blue, leaves orange (pale when empty), the hit ringed.</p>';
     html += '<div class="buttons"><button type="button" id="ray-clear">Clear</button></div>';
     el.innerHTML = html;
-    el.querySelector('#ray-clear').addEventListener('click', () => app.clearRay());
+    el.querySelector('#ray-clear').addEventListener('click', () => app.dismissRay());
 }

@@ -147,9 +147,14 @@ export class Uploader {
                 ask();
                 return;
             }
-            const actions = [close];
-            if (err.code === 'conflict' || xhr.status === 409) actions.unshift([`Replace "${name}"`, () => this.upload(files, true)]);
-            this.status(err.words, { error: true, actions });
+            // the name is taken, and the daemon's own remedy (its message names ?replace=1) is the Replace button:
+            // said in the viewer's words; another conflict (a .mtl of the folder's) is not one that replacing mends
+            if (xhr.status === 409 && /\?replace=1/.test(err.daemonMessage)) {
+                this.status(`There is already a model named "${name}" on the daemon.`,
+                    { error: true, actions: [[`Replace "${name}"`, () => this.upload(files, true)], close] });
+                return;
+            }
+            this.status(err.words, { error: true, actions: [close] });
         };
         xhr.onerror = () => {
             this.status(new ApiError(what, 0, '', 'the connection failed').words, { error: true, actions: [close] });

@@ -5,7 +5,8 @@
 // once and drawn as each arrives: behind a load balancer every node renders
 // some, and on one daemon the frame still shows progressively (the strips
 // are the whole frame's pixels, bit for bit). Heat frames stay whole (their
-// colours scale to the whole frame's 99th percentile) unless the daemon's
+// colours scale to the whole frame's 99th percentile; in split view to the
+// larger of both panes', so one colour is one cost) unless the daemon's
 // budget of samples per request (--max-pixels) splits them too. Never more
 // than one frame in flight: a quick frame is awaited, a full frame the view
 // no longer wants is aborted and superseded on the daemon by the next frame
@@ -73,10 +74,11 @@ export class Pane {
         this.building = null;      // {key, start, timer}
         this.boxes = null;         // {key, data} | {key, error}
         this.boxesLoading = '';
+        this.boxesAbort = null;    // the AbortController of the boxes being loaded
         this.retryTimer = 0;
         this.overlayDrawn = null;  // {camera, boxes, ray} the overlay shows: drawOverlay skips redrawing them
         this.ray = null;           // {req, data, heat}
-        this.heat = null;          // {tree, scale}: the last full heat frame's X-Heat-Scale
+        this.heat = null;          // {key (scaleKey), scale}: the last full heat frame's X-Heat-Scale
         this.frameTimes = [];      // arrival times of quick frames while moving (FPS)
         this.fps = null;
         this.buildDoneKeys = new Set();
@@ -88,7 +90,7 @@ export class Pane {
         el.className = 'pane';
         el.innerHTML = `
           <div class="pane-title"><strong class="tree-name"></strong><span class="frame-info"></span></div>
-          <div class="frame" tabindex="0" role="img" aria-describedby="hint">
+          <div class="frame" id="frame-${this.index}" tabindex="0" role="img" aria-describedby="hint">
             <canvas class="image" width="640" height="480"></canvas>
             <canvas class="overlay" width="640" height="480" aria-hidden="true"></canvas>
             <span class="badge building" hidden></span>
@@ -118,6 +120,12 @@ export class Pane {
         return `${this.app.state.model}@${model ? model.version : ''}/${t.accel}/${t.builder}`;
     }
 
+    /** What the pane's heat colours depend on: its tree, and in split view every pane's (they share one scale). */
+    scaleKey() {
+        const app = this.app;
+        return app.panes.length > 1 && app.state.mode === 'heat' ? app.panes.map((p) => p.treeKey()).join(' ') : this.treeKey();
+    }
+
     /** The render request for the current view; quick: the moving-view frame. */
     request(quick) {
         const s = this.app.state, t = this.tree(), model = this.app.model();
@@ -136,7 +144,7 @@ export class Pane {
         };
         if (quick && s.mode === 'ao') req.ao_samples = 2;
         // quick heat frames keep the last full frame's colour scale, so colours hold still while orbiting
-        if (quick && s.mode === 'heat' && this.heat && this.heat.tree === this.treeKey() && this.heat.scale > 0) {
+        if (quick && s.mode === 'heat' && this.heat && this.heat.key === this.scaleKey() && this.heat.scale > 0) {
             req.heat_scale = this.heat.scale;
         }
         return req;
@@ -159,7 +167,7 @@ export class Pane {
         this.stats = null;
         this.statsKey = '';
         this.boxes = null;
-        this.boxesLoading = '';
+        this.cancelBoxes();
         this.clearError();
         this.canvas.getContext('2d').clearRect(0, 0, this.canvas.width, this.canvas.height);
         delete this.canvas.dataset.frame;
@@ -184,7 +192,7 @@ export class Pane {
         if (this.building || app.state.tab !== 'view') return;
         const quick = app.moving;
         const req = this.request(quick);
-        const key = `${this.treeKey()} ${JSON.stringify(req)}`;
+        const key = `${this.scaleKey()} ${JSON.stringify(req)}`;
         if (this.inflight) {
             if (this.inflight.key === key) return;
             if (!this.inflight.quick) {
@@ -265,7 +273,7 @@ export class Pane {
         if (!quick) {
             this.lastFull = { blob: frame.blob, req };
             if (!frame.blob) this.canvas.toBlob((b) => { if (this.lastFull && this.lastFull.req === req) this.lastFull.blob = b; });
-            if (req.mode === 'heat' && frame.heatScale > 0) this.heat = { tree: this.treeKey(), scale: frame.heatScale };
+            if (req.mode === 'heat' && frame.heatScale > 0) this.heat = { key: this.scaleKey(), scale: frame.heatScale };
         }
         const now = performance.now();
         if (quick) {
@@ -289,14 +297,18 @@ export class Pane {
      * frame's totals: for strips, the wall time from the first request to the
      * last strip (they render side by side) and the rays over it; the PNG of a
      * whole frame. A heat frame in strips is coloured to one scale: the 99th
-     * percentile of the same view at 1 spp, asked for first.
+     * percentile of the same view at 1 spp, asked for first; a full heat frame
+     * in split view to the larger of both panes' such scales, so that a colour
+     * is the same cost in each.
      */
     async fetchFrame(req, regions, flight) {
         const [W, H] = this.app.state.res;
         const start = performance.now();
         let heatScale = null;
-        if (req.mode === 'heat' && regions[0] && !req.heat_scale) {
-            heatScale = (await api.renderJSON({ ...req, spp: 1 }, { signal: flight.controller.signal })).heat_scale;
+        const shared = this.app.panes.length > 1 && !flight.quick;
+        if (req.mode === 'heat' && (regions[0] || shared) && !req.heat_scale) {
+            const views = shared ? this.app.panes.map((p) => p.request(false)) : [req];
+            heatScale = await this.app.heatScale(views, flight.controller.signal);
             req = { ...req, heat_scale: heatScale };
         }
         const part = async (region, i) => {
@@ -437,10 +449,18 @@ export class Pane {
         });
     }
 
+    /** Drops the boxes on their way: they are no longer wanted (another depth, tree or model). */
+    cancelBoxes() {
+        if (this.boxesAbort) this.boxesAbort.abort();
+        this.boxesAbort = null;
+        this.boxesLoading = '';
+    }
+
     /** Loads the boxes of the pane's tree for the app's box settings. */
     loadBoxes() {
         const app = this.app, b = app.state.boxes;
         if (!b.on || !app.model()) {
+            this.cancelBoxes();
             this.boxes = null;
             app.scheduleDraw();
             return;
@@ -451,8 +471,11 @@ export class Pane {
         const key = `${this.treeKey()}/${b.depth}/${kind}`;
         // boxes that failed are asked for again
         if ((this.boxes && this.boxes.key === key && !this.boxes.error) || this.boxesLoading === key) return;
+        this.cancelBoxes();
+        const controller = new AbortController();
+        this.boxesAbort = controller;
         this.boxesLoading = key;
-        api.treeBoxes(app.state.model, t.accel, t.builder, b.depth, kind).then((data) => {
+        api.treeBoxes(app.state.model, t.accel, t.builder, b.depth, kind, { signal: controller.signal }).then((data) => {
             if (this.boxesLoading !== key) return;
             this.boxes = { key, data };
         }, (e) => {
@@ -460,7 +483,9 @@ export class Pane {
             this.boxes = { key, error: e };
             if (transient(e)) this.retryLater();
         }).finally(() => {
-            if (this.boxesLoading === key) this.boxesLoading = '';
+            if (this.boxesAbort !== controller) return;
+            this.boxesAbort = null;
+            this.boxesLoading = '';
             app.panesChanged();
         });
     }
@@ -527,6 +552,7 @@ export class Pane {
 
     dispose() {
         if (this.inflight) this.inflight.controller.abort();
+        this.cancelBoxes();
         this.stopBuilding();
         clearTimeout(this.retryTimer);
         this.el.remove();
