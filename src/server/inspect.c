@@ -63,11 +63,15 @@ static cJSON *node_json(const arbor_node_info *n, bool step)
 
 /* ---- boxes ---- */
 
+/* A walk over the nodes the request wants: the first counts them (boxes
+ * NULL), the second sends them, or past BOXES_MAX an even sample of them
+ * in tree order, so that the boxes drawn cover the whole tree rather than
+ * the corner its first BOXES_MAX nodes fill. */
 typedef struct {
     const inspect_req *q;
     cJSON *boxes;
-    uint32_t count;
-    bool truncated;
+    uint64_t total;   /* what the first walk counted */
+    uint64_t seen;
 } box_walk;
 
 static bool on_node(void *user, const arbor_node_info *n)
@@ -78,24 +82,26 @@ static bool on_node(void *user, const arbor_node_info *n)
                                : q->all_levels ? n->depth <= q->depth : n->depth == q->depth;
     if (!want)
         return true;
-    /* past the cap the walk goes on only to count: the viewer says how many
-     * of how many it draws */
-    if (w->count < BOXES_MAX)
+    uint64_t i = w->seen++;
+    /* floor(i * BOXES_MAX / total) steps up BOXES_MAX times as i goes
+     * from 0 to total, at every i when total is at most BOXES_MAX */
+    if (w->boxes != NULL && (i + 1) * BOXES_MAX / w->total != i * BOXES_MAX / w->total)
         json_push(w->boxes, node_json(n, false));
-    else
-        w->truncated = true;
-    w->count++;
     return true;
 }
 
 static void answer_boxes(const inspect_req *q, const arbor_accel *a)
 {
-    box_walk w = {q, cJSON_CreateArray(), 0, false};
+    box_walk w = {q, NULL, 0, 0};
+    arbor_accel_walk(a, q->depth, on_node, &w);
+    w.total = w.seen;
+    w.seen = 0;
+    w.boxes = cJSON_CreateArray();
     arbor_accel_walk(a, q->depth, on_node, &w);
     cJSON *o = cJSON_CreateObject();
     cJSON_AddNumberToObject(o, "depth", q->depth);
-    cJSON_AddNumberToObject(o, "count", w.count);
-    cJSON_AddBoolToObject(o, "truncated", w.truncated);
+    cJSON_AddNumberToObject(o, "count", (double)w.total);
+    cJSON_AddBoolToObject(o, "truncated", w.total > BOXES_MAX);
     cJSON_AddNumberToObject(o, "max_boxes", BOXES_MAX);
     json_put(o, "boxes", w.boxes);
     http_reply_json(q->http, 200, o);

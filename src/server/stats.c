@@ -9,6 +9,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "arbor/embree_peer.h"
 #include "arbor/report.h"
 #include "arbor/sys.h"
 #include "http.h"
@@ -248,6 +249,8 @@ static cJSON *daemon_json(arbor_server *s)
     cJSON_AddNumberToObject(lim, "max_pixels", (double)s->config.max_pixels);
     cJSON_AddNumberToObject(lim, "max_body", (double)s->config.max_body);
     cJSON_AddNumberToObject(lim, "max_upload", (double)s->config.max_upload);
+    /* whether a bench job may ask for Embree beside the trees */
+    cJSON_AddBoolToObject(d, "embree", arbor_embree_available());
     return d;
 }
 

@@ -187,26 +187,29 @@ test("the compare tab's progress and status belong to the model benchmarked, not
     });
 });
 
-test('a daemon that says it was built without Embree: Embree is no longer offered, with its words beside the choice', T, async () => {
-    await withViewer({}, async (d, { page, errors }) => {
-        const why = 'built without Embree; run `make bench-embree`';
-        await page.route('**/api/bench', (r) => r.fulfill({ status: 202, json: { id: '11', state: 'queued' } }));
-        await page.route('**/api/jobs/11', (r) => r.fulfill({
-            json: { id: '11', model: 'sphere', state: 'failed', progress: { done: 0, total: 9 }, elapsed_ms: 1, rows: [], error: why },
-        }));
-        await page.goto(`${d.base}/?model=sphere&tab=compare`);
-        await page.waitForFunction(() => document.getElementById('model').value === 'sphere');
-        const options = () => page.$$eval('#cmp-peer option', (os) => os.map((o) => [o.value, o.disabled, o.title]));
-        assert.deepEqual(await options(), [['', false, ''], ['embree', false, ''], ['robust', false, '']]);
-        await page.selectOption('#cmp-peer', 'embree');
-        await page.click('#cmp-start');
-        await page.waitForSelector('#cmp-error:not([hidden])');
-        assert.deepEqual(await options(), [['', false, ''], ['embree', true, why], ['robust', true, why]]);
-        assert.equal(await page.inputValue('#cmp-peer'), '');
-        assert.equal(await page.isVisible('#cmp-peer-why'), true);
-        assert.match(await page.textContent('#cmp-peer-why'), /built without Embree; run `make bench-embree`/);
-        assert.deepEqual(errors, []);
-    });
+test('Embree is offered only by a daemon that says it has it (/api/stats daemon.embree)', T, async () => {
+    for (const embree of [true, false]) {
+        await withViewer({}, async (d, { page, errors }) => {
+            await page.route('**/api/stats', async (route) => {
+                const res = await route.fetch();
+                const json = await res.json();
+                route.fulfill({ response: res, json: { ...json, daemon: { ...json.daemon, embree } } });
+            });
+            await page.goto(`${d.base}/?model=sphere&tab=compare`);
+            await page.waitForFunction(() => document.getElementById('model').value === 'sphere');
+            const options = () => page.$$eval('#cmp-peer option', (os) => os.map((o) => [o.value, o.disabled]));
+            if (embree) {
+                assert.deepEqual(await options(), [['', false], ['embree', false], ['robust', false]]);
+                assert.equal(await page.isVisible('#cmp-peer-why'), false);
+            } else {
+                await page.waitForSelector('#cmp-peer-why:not([hidden])');
+                assert.deepEqual(await options(), [['', false], ['embree', true], ['robust', true]]);
+                assert.equal(await page.inputValue('#cmp-peer'), '');
+                assert.match(await page.textContent('#cmp-peer-why'), /built without Embree/);
+            }
+            assert.deepEqual(errors, []);
+        });
+    }
 });
 
 test('turning split view off and on keeps the second tree chosen', T, async () => {

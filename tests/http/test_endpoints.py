@@ -3,6 +3,7 @@ import json
 import math
 import os
 import re
+import subprocess
 import time
 
 from harness import (Daemon, add_test, default_web_daemon, check, eq, expect_json, expect_ok, fail, ignore, limits_daemon,
@@ -271,6 +272,11 @@ def test_stats_daemon_section():
     limits = expect_json(limits_daemon().get("/api/stats"))["daemon"]["limits"]
     eq(limits, {"max_pixels": 100000, "max_body": 4096, "max_upload": 65536},
        "daemon.limits of --max-pixels 100000 --max-body 4K --max-upload 64K")
+    # daemon.embree says what the binary's own bench finds: it runs Embree beside the trees, or refuses
+    bench = subprocess.run([ARBORD, "bench", "--model", our("cornell.obj"), "--accel", "bvh", "--builder",
+                            "sah", "--runs", "1", "--embree"], capture_output=True, text=True, timeout=300)
+    eq(dm["embree"], bench.returncode == 0, "daemon.embree against `arbord bench --embree` (exit %d: %s)" %
+       (bench.returncode, bench.stderr.strip()[-200:]))
 
 
 @test
@@ -580,6 +586,17 @@ def test_boxes_truncated_at_max_boxes():
     st = expect_json(d.get("/api/stats?model=menger&accel=kd&builder=spatial"))["trees"][0]
     check(st["max_depth"] <= 40 and st["nodes"] > j["max_boxes"] == 20000,
           "kd:spatial of menger: %d nodes to depth %d, max_boxes %r" % (st["nodes"], st["max_depth"], j["max_boxes"]))
-    # the first max_boxes listed, and all of them counted
+    # max_boxes of them listed, and all of them counted
     eq((j["count"], j["truncated"], len(j["boxes"])), (st["nodes"], True, j["max_boxes"]),
        "every node to depth 40: count, truncated, boxes listed")
+    # an even sample over the whole tree, not its first max_boxes in depth-first order (one corner of
+    # the model): the leaves listed reach every side of the model's box
+    model = expect_json(d.get("/api/models/menger"))["bounds"]
+    leaves = [b for b in j["boxes"] if b["leaf"]]
+    for axis in range(3):
+        size = model["max"][axis] - model["min"][axis]
+        lo = min(b["min"][axis] for b in leaves)
+        hi = max(b["max"][axis] for b in leaves)
+        check(lo - model["min"][axis] < 0.1 * size and model["max"][axis] - hi < 0.1 * size,
+              "sampled leaves span %g..%g on axis %d of the model's %g..%g" %
+              (lo, hi, axis, model["min"][axis], model["max"][axis]))

@@ -124,8 +124,8 @@ export async function postJSON(what, url, body, auth = false, init = {}) {
 export const enc = encodeURIComponent;
 
 export const listModels = () => getJSON('Listing the models', '/api/models').then((j) => j.models || []);
-/** The daemon's limits on one request ({max_pixels, max_body, max_upload}: GET /api/stats). */
-export const daemonLimits = () => getJSON("Reading the daemon's limits", '/api/stats').then((j) => (j.daemon && j.daemon.limits) || {});
+/** What the daemon says of itself (GET /api/stats' daemon: its limits on one request, whether it has Embree). */
+export const daemonInfo = () => getJSON("Reading the daemon's limits", '/api/stats').then((j) => j.daemon || {});
 export const getModel = (name) => getJSON(`Reading model ${name}`, `/api/models/${enc(name)}`);
 
 export function treeStats(model, accel, builder) {

@@ -33,8 +33,6 @@ export const CHARTS = [
 const esc = (s) => String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
 const treeLabel = (a, b) => `${a === 'kd' ? 'k-d' : 'BVH'} ${b}`;
 const $ = (id) => document.getElementById(id);
-// how a daemon built without Embree fails a job that asks for it (API.md: "an error that says so"); it says so nowhere else
-const NO_EMBREE = /without Embree/i;
 
 export class Compare {
     constructor(app) {
@@ -61,7 +59,7 @@ export class Compare {
         this.draw(m, this.results.get(m) || null);
     }
 
-    /** The daemon has no Embree, as a job that asked for it said (why: its words): Embree is no longer offered. */
+    /** The daemon has no Embree (/api/stats says so; why: the words shown): Embree is not offered. */
     noEmbree(why) {
         const peer = $('cmp-peer');
         for (const o of peer.options) {
@@ -131,7 +129,6 @@ export class Compare {
             $('cmp-progress-text').textContent = `done: ${(j.rows || []).length} rows in ${secs} s`;
             this.showCharts();
         } else if (j.state === 'failed' || j.state === 'cancelled') {
-            if (job.peer && j.state === 'failed' && NO_EMBREE.test(j.error || '')) this.noEmbree(j.error);
             const run = this.results.has(job.model) ? 'The re-run of the benchmark' : 'The benchmark';
             this.ended(job, j.state === 'failed'
                 ? `${run} of ${job.model} failed: ${j.error || 'the daemon gave no reason'}.`

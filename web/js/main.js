@@ -163,8 +163,9 @@ class App {
         this.showTab(this.state.tab);
         for (const m of await this.listModels()) this.models.set(m.name, m);
         // frames are split by the daemon's own budget; a daemon that does not say keeps the default
-        const limits = await api.daemonLimits().catch(() => ({}));
-        if (limits.max_pixels > 0) this.maxSamples = limits.max_pixels;
+        const daemon = await api.daemonInfo().catch(() => ({}));
+        if (daemon.limits?.max_pixels > 0) this.maxSamples = daemon.limits.max_pixels;
+        if (daemon.embree === false) this.compare.noEmbree('this daemon was built without Embree: `make bench-embree` builds one with it');
         this.fillModels();
         if (!this.models.has(this.state.model)) {
             if (this.state.model) this.notify(`There is no model "${this.state.model}" on the daemon; showing another.`, 'error');
@@ -474,8 +475,8 @@ class App {
                 // the depth of the boxes shown, not the slider's: they may still be on their way
                 const what = `${b.leaves ? 'leaf ' : ''}box${count === 1 ? '' : 'es'}` +
                     (b.leaves ? ` up to depth ${d.depth}` : b.all ? ` at depths 0–${d.depth}` : ` at depth ${d.depth}`);
-                // count: every node that matches; boxes: at most max_boxes of them
-                const cap = `(capped at ${num(Number(d.max_boxes))})`;
+                // count: every node that matches; boxes: all, or an even sample of max_boxes of them
+                const cap = `(an even sample: at most ${num(Number(d.max_boxes))})`;
                 parts.push(!d.truncated ? `${name}: ${num(n)} ${what}`
                     : count > n ? `${name}: ${num(n)} of ${num(count)} ${what} drawn ${cap}`
                         : `${name}: ${num(n)} ${what} drawn, more left out ${cap}`);
