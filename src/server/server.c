@@ -583,11 +583,12 @@ static void dispatch(http_req *r, const char *path)
         char name[ARBOR_MODEL_NAME_MAX + 2];
         const char *p = path + 11;
         if (!next_segment(&p, name, sizeof name) || !arbor_model_name_valid(name)) {
+            int len = (int)strcspn(path + 12, "/"); /* the name's segment, not the path after it */
             if (r->upload)
                 http_reply_error(r, 400, "bad_request",
-                                 "'%s' is no model name: names are " ARBOR_MODEL_NAME_RULE, path + 12);
+                                 "'%.*s' is no model name: names are " ARBOR_MODEL_NAME_RULE, len, path + 12);
             else
-                http_reply_error(r, 404, "not_found", "no model named '%s'", path + 12);
+                http_reply_error(r, 404, "not_found", "no model named '%.*s'", len, path + 12);
             return;
         }
         route_models(r, name, p);

@@ -207,6 +207,9 @@ CASES = [
      400, "bad_request", None),
     ("model_name_too_long", "main", "PUT", "/api/models/" + "n" * 65, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
      400, "bad_request", None),
+    # the message names the name, not the path after it
+    ("model_name_too_long_in_trees", "main", "POST", "/api/models/" + "n" * 65 + "/trees",
+     {"accel": "bvh", "builder": "sah"}, 404, "not_found", "no model named '" + "n" * 65 + "'"),
     ("model_name_leading_dot", "main", "PUT", "/api/models/.hidden", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
      400, "bad_request", "'.'"),
     ("delete_unknown_model", "main", "DELETE", "/api/models/no-such-model", None, 404, "not_found", None),
