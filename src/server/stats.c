@@ -237,6 +237,9 @@ static cJSON *daemon_json(arbor_server *s)
     cJSON_AddNumberToObject(q, "waiting", waiting);
     cJSON_AddNumberToObject(q, "rendering", rendering);
     cJSON_AddNumberToObject(q, "limit", s->config.queue);
+    /* frames rendered at once (one per worker): a client splitting a frame
+     * gains nothing by asking for more strips at a time */
+    cJSON_AddNumberToObject(q, "threads", s->config.threads);
     cJSON *mem = cJSON_AddObjectToObject(d, "memory");
     cJSON_AddNumberToObject(mem, "models", (double)u.models);
     cJSON_AddNumberToObject(mem, "trees", (double)u.trees);

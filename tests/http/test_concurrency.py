@@ -111,7 +111,7 @@ def test_queue_full_503_at_once():
     rejected = metric_value(d.metrics()[0], "arbor_frames_rejected_total") or 0
     eq(rejected - rejected0, float(len(busy)), "arbor_frames_rejected_total increase")
     q = expect_json(d.get("/api/stats"))["daemon"]["queue"]
-    eq((q["waiting"], q["rendering"], q["limit"]), (0, 0, 1), "queue after the burst")
+    eq((q["waiting"], q["rendering"], q["limit"], q["threads"]), (0, 0, 1, 1), "queue after the burst")
 
 
 def _start(d, body, out, key):
