@@ -6,9 +6,11 @@ import * as api from './api.js';
 import { protocolOrbit, clampPitch, requestCamera } from './camera.js';
 import { Pane, rowSamples } from './view.js';
 import { attachControls, MIN_DISTANCE, MAX_DISTANCE } from './controls.js';
-import { renderStats, renderLegend, renderRay, triangles } from './panels.js';
+import { renderStats, renderLegend, renderRay, triangles, treeLabel } from './panels.js';
 import { Compare } from './compare.js';
 import { Uploader } from './upload.js';
+import { Slots } from './slots.js';
+import { savePanes } from './save.js';
 
 const ACCELS = ['bvh', 'kd'];
 const BUILDERS = ['spatial', 'median', 'mean', 'sah'];
@@ -22,6 +24,10 @@ const DEPTH_REST_MS = 120;
 const MAX_SAMPLES = 16777216;
 // the model list is asked for again after this while the daemon cannot give it
 const LIST_RETRY_MS = 2000;
+// frame requests at once until GET /api/stats says how many frames the daemon renders at a time (queue.threads)
+const RENDER_SLOTS = 2;
+// the layout where the panels come far below the frame (arbor.css's phone layout)
+const NARROW = '(max-width: 900px)';
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => (v === null || v === '' || v === undefined ? NaN : Number(v));
@@ -107,12 +113,14 @@ class App {
         this.rayInspect = null;
         this.rayShown = undefined; // the rayInspect the ray panel shows: it is rebuilt only for another
         this.rayToken = 0;
+        this.revealRay = false;    // the ray being traced was asked for by a tap on a phone: its panel scrolls into view
         this.heatMeasure = null;   // {key, promise, controller, users}: the heat scale being measured (heatScale)
         this.depthTimer = 0;
         // a second tree the URL or the user chose is kept while split view is off
         this.splitChosen = this.state.split.on;
         this.drawQueued = false;
         this.maxSamples = MAX_SAMPLES;
+        this.slots = new Slots(RENDER_SLOTS);
         this.dark = matchMedia('(prefers-color-scheme: dark)');
         this.dark.addEventListener('change', () => this.pumpAll());
     }
@@ -165,6 +173,8 @@ class App {
         // frames are split by the daemon's own budget; a daemon that does not say keeps the default
         const daemon = await api.daemonInfo().catch(() => ({}));
         if (daemon.limits?.max_pixels > 0) this.maxSamples = daemon.limits.max_pixels;
+        // more requests than the daemon renders at once would only wait in its queue (API.md: queue.threads)
+        if (daemon.queue?.threads > 0) this.slots.resize(daemon.queue.threads);
         if (daemon.embree === false) this.compare.noEmbree('this daemon was built without Embree: `make bench-embree` builds one with it');
         this.fillModels();
         if (!this.models.has(this.state.model)) {
@@ -430,6 +440,7 @@ class App {
             this.scheduleDraw();
         }, REST_MS);
         this.pumpAll();
+        this.scheduleDraw(); // Save PNG waits for the new view's frame
         this.saveURL();
     }
 
@@ -507,6 +518,10 @@ class App {
         if (this.rayShown !== this.rayInspect) {
             renderRay($('ray-panel'), this);
             this.rayShown = this.rayInspect;
+            if (this.revealRay && this.rayInspect && !this.rayInspect.pending) {
+                this.revealRay = false;
+                $('ray-panel').closest('.card').scrollIntoView({ block: 'start', behavior: 'smooth' });
+            }
         }
         this.boxesInfo();
         // the boxes are those of the tree rays traverse: a BVH's wide tree, a k-d tree's own; in split view the
@@ -517,7 +532,22 @@ class App {
             const max = Math.max(...depths, this.state.boxes.depth);
             if (Number(depth.max) !== max) depth.max = String(max);
         }
+        $('depth-note').textContent = this.depthNote();
+        const save = $('save-png'), complete = this.framesComplete();
+        save.disabled = !complete;
+        save.title = complete ? (this.panes.length > 1 ? 'Both panes side by side, each under its title' : '')
+            : 'Waiting for the full frame of this view';
         for (const p of this.panes) p.drawOverlay();
+    }
+
+    /** Which tree's levels the depth slider walks: the one rays traverse, shallower than a BVH's binary tree in the stats. */
+    depthNote() {
+        const notes = this.panes.filter((p) => p.stats && !p.stats.error).map((p) => {
+            const st = p.stats;
+            return st.wide ? `${treeLabel(st)}: its wide tree, depths 0–${st.wide.max_depth} (the binary tree it was built as, in the stats, goes to ${st.max_depth})`
+                : `${treeLabel(st)}: its own tree, depths 0–${st.max_depth}`;
+        });
+        return notes.length ? `Walks the tree rays traverse. ${notes.join('; ')}.` : '';
     }
 
     saveURL(now = false) {
@@ -543,6 +573,8 @@ class App {
         this.rayInspect = { pane: pane.index, req, pending: true };
         pane.ray = { req, data: null };
         this.scheduleDraw();
+        // on a phone the ray panel is far below the frame: it is brought to the tap once it holds the ray (drawPanels)
+        this.revealRay = matchMedia(NARROW).matches;
         const heatReq = {
             model: req.model, accel: req.accel, builder: req.builder, mode: 'heat', camera,
             width: W, height: H, spp: 1, region: { x: px.x, y: px.y, w: 1, h: 1 },
@@ -573,20 +605,17 @@ class App {
         this.scheduleDraw();
     }
 
+    /** Whether every pane shows the whole full frame of the current view: Save PNG saves only that. */
+    framesComplete() {
+        return !this.moving && this.panes.every((p) => p.complete());
+    }
+
     savePNG() {
-        const p = this.panes[0];
-        if (!p || !p.lastFull || !p.lastFull.blob) {
-            this.notify('There is no full frame to save yet; let the view rest a moment.', 'error');
+        if (!this.framesComplete()) {
+            this.notify('The frame of this view is not complete yet; Save PNG is ready once it is.', 'error');
             return;
         }
-        const r = p.lastFull.req;
-        const a = document.createElement('a');
-        a.href = URL.createObjectURL(p.lastFull.blob);
-        a.download = `${r.model}-${r.accel}-${r.builder}-${r.mode}-${r.width}x${r.height}.png`;
-        document.body.append(a);
-        a.click();
-        a.remove();
-        setTimeout(() => URL.revokeObjectURL(a.href), 10000);
+        savePanes(this.panes).catch((e) => this.notify(`Saving the PNG failed: ${e.message}`, 'error'));
     }
 }
 

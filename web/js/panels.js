@@ -24,7 +24,15 @@ export function fmtBytes(b) {
     return `${v.toFixed(i ? 1 : 0)} ${units[i]}`;
 }
 
-const treeLabel = (t) => `${t.accel === 'kd' ? 'k-d' : 'BVH'} ${t.builder}`;
+/** "BVH sah", "k-d median": a tree ({accel, builder}, or a request) for a person. */
+export const treeLabel = (t) => `${t.accel === 'kd' ? 'k-d' : 'BVH'} ${t.builder}`;
+
+// what the frame rows measure (their headers' tooltips)
+const DAEMON_MS_WHY = "The daemon's render time (X-Render-Ms), summed over the frame's requests (its strips): each renders " +
+    "on one worker, so this is the frame's cost on one core, whatever waited in the queue or rendered beside it. " +
+    'Comparable between trees and panes.';
+const WALL_MS_WHY = 'What the browser waited, from the first request of the frame to its last answer: the daemon renders ' +
+    'strips side by side on its workers, and in split view shares them between the panes (taking their strips in turn).';
 
 /** The frame and tree statistics of every pane, one column each. */
 export function renderStats(el, app) {
@@ -33,8 +41,12 @@ export function renderStats(el, app) {
         const s = p.shown, st = p.stats && !p.stats.error ? p.stats : null;
         return {
             name: treeLabel(p.tree()),
+            frameOf: s ? `${treeLabel(s.req)} · ${s.req.mode}` : '',
+            stale: p.frameIsStale(),
             ms: s ? s.renderMs : null,
             mrays: s ? s.mrays : null,
+            daemonMs: s ? s.daemonMs : null,
+            daemonMrays: s ? s.daemonMrays : null,
             fps: app.moving ? p.fps : null,
             lastFps: p.fps,
             size: s ? `${s.req.width}×${s.req.height}${s.quick ? ' quick' : ''}` : null,
@@ -43,17 +55,24 @@ export function renderStats(el, app) {
             building: !!p.building,
         };
     });
-    const row = (label, f, key) =>
-        `<tr${key ? ` data-key="${key}"` : ''}><th scope="row">${label}</th>${cols.map((c, i) => `<td data-pane="${i}">${f(c)}</td>`).join('')}</tr>`;
+    const row = (label, f, key, why = '') =>
+        `<tr${key ? ` data-key="${key}"` : ''}><th scope="row"${why ? ` title="${esc(why)}"` : ''}>${label}</th>${cols.map((c, i) => `<td data-pane="${i}">${f(c)}</td>`).join('')}</tr>`;
+    // a frame of the tree or mode left behind keeps its numbers, greyed, until the new one comes
+    const frame = (f) => (c) => (c.stale ? `<span class="muted">${f(c)}</span>` : f(c));
     const stat = (k, digits) => (c) => (c.st ? fmt(c.st[k], digits) : c.building ? 'building…' : '—');
     let html = '<div class="scroll"><table class="kv" id="stats-table">';
     if (cols.length > 1) html += `<thead><tr><th></th>${cols.map((c) => `<th scope="col">${esc(c.name)}</th>`).join('')}</tr></thead>`;
     html += '<tbody>';
-    html += row('Frame ms', (c) => fmt(c.ms), 'frame_ms');
-    html += row('Mrays/s', (c) => fmt(c.mrays), 'mrays');
+    if (cols.some((c) => c.stale)) {
+        html += row('Frame of', (c) => (c.stale ? `${esc(c.frameOf)} <span class="muted small">(previous)</span>` : esc(c.frameOf)), 'frame_of');
+    }
+    html += row('Render ms (daemon)', frame((c) => fmt(c.daemonMs)), 'render_ms', DAEMON_MS_WHY);
+    html += row('Mrays/s (daemon)', frame((c) => fmt(c.daemonMrays)), 'mrays', DAEMON_MS_WHY);
+    html += row('Wall ms (browser)', frame((c) => fmt(c.ms)), 'frame_ms', WALL_MS_WHY);
+    html += row('Mrays/s (wall)', frame((c) => fmt(c.mrays)), 'mrays_wall', WALL_MS_WHY);
     html += row('FPS (orbiting)', (c) => (c.fps !== null && c.fps !== undefined ? fmt(c.fps, 1)
         : c.lastFps ? `<span class="muted">last ${fmt(c.lastFps, 1)}</span>` : '—'), 'fps');
-    html += row('Frame size', (c) => c.size || '—', 'size');
+    html += row('Frame size', frame((c) => c.size || '—'), 'size');
     html += `<tr><th colspan="${cols.length + 1}" scope="rowgroup" class="group">Tree${cols.length === 1 ? ': ' + esc(cols[0].name) : ''}</th></tr>`;
     html += row('Build ms', stat('build_ms'), 'build_ms');
     html += row('Nodes', stat('nodes'), 'nodes');
@@ -127,7 +146,9 @@ export function renderLegend(el, bars, app) {
         return;
     }
     el.hidden = false;
-    const name = (p) => `${esc(treeLabel(p.tree()))}${p.shown.quick ? ' (quick frame)' : ''}`;
+    // the tree of the frame shown, which may be the one left behind until the new one's frame comes
+    const name = (p) => `${esc(treeLabel(p.shown.req))}${p.shown.quick ? ' (quick frame)' : ''}` +
+        `${p.frameIsStale() ? `: the previous tree's frame, until ${esc(treeLabel(p.tree()))}'s comes` : ''}`;
     const scale = panes[0].shown.heatScale;
     const shared = app.panes.length > 1 && panes.length === app.panes.length && panes.every((p) => p.shown.heatScale === scale);
     if (shared) {
@@ -136,7 +157,7 @@ export function renderLegend(el, bars, app) {
             'White: at or above it. Blue: rays that cost nothing.</p>';
         return;
     }
-    bars.innerHTML = panes.map((p) => legendRow([p], p.shown.heatScale, app.panes.length > 1 ? name(p) : '')).join('') +
+    bars.innerHTML = panes.map((p) => legendRow([p], p.shown.heatScale, app.panes.length > 1 || p.frameIsStale() ? name(p) : '')).join('') +
         '<p class="muted small">White: at or above the scale (the frame\'s 99th percentile). Blue: rays that cost nothing.</p>';
 }
 

@@ -1,10 +1,13 @@
 // view.js - one frame pane: a canvas with arbord's frames, an overlay canvas
 // for tree boxes and the inspected ray, and the frame loop. While the view
 // moves the pane asks for quick frames (a fraction of the resolution, 1 spp);
-// at rest, for the full frame, as horizontal strips (`region`) asked for at
-// once and drawn as each arrives: behind a load balancer every node renders
-// some, and on one daemon the frame still shows progressively (the strips
-// are the whole frame's pixels, bit for bit). Heat frames stay whole (their
+// at rest, for the full frame, as horizontal strips (`region`) drawn as each
+// arrives, asked for no more at once than the daemon renders at a time
+// (slots.js), so that the first strips come early rather than all together
+// (the strips are the whole frame's pixels, bit for bit). An expensive full
+// frame is preceded by a quick frame of its view, which the strips replace.
+// A frame of another tree or mode than the pane's is dimmed and named as
+// such until the pane's own arrives. Heat frames stay whole (their
 // colours scale to the whole frame's 99th percentile; in split view to the
 // larger of both panes', so one colour is one cost) unless the daemon's
 // budget of samples per request (--max-pixels) splits them too. Never more
@@ -15,11 +18,14 @@
 import * as api from './api.js';
 import { cameraFromRequest, requestCamera, project } from './camera.js';
 import { drawBoxes, drawMarker, depthColour, projectedRect } from './overlay.js';
+import { treeLabel } from './panels.js';
 
 const QUICK_PIXELS = 80000;
 const STRIP_ROWS = 128;
-// strips asked for at once: more wait for a slot, as the daemon's queue is bounded (--queue)
+// strips of a full frame (more only when the daemon's samples per request need it): enough to watch it fill in
 const MAX_STRIPS = 8;
+// a full frame costing more samples than this (the default 640x480 at 4 spp costs 1.2 M) is previewed by a quick frame
+const PREVIEW_SAMPLES = 2 ** 21;
 // the daemon's default ao_samples (API.md), part of an ao frame's cost
 const AO_SAMPLES = 8;
 // a failed frame, tree statistics or boxes that may succeed later (the daemon was away or busy) are asked again after this
@@ -29,6 +35,13 @@ const RETRY_MS = 2000;
 export function rowSamples(req) {
     return req.width * req.spp * (req.mode === 'ao' ? req.ao_samples ?? AO_SAMPLES : 1);
 }
+
+/** Samples a whole frame costs (rowSamples per row). */
+const frameSamples = (req) => rowSamples(req) * req.height;
+
+/** Whether two render requests show the same view: model, tree, mode, size and camera (their samples may differ). */
+const sameView = (a, b) => ['model', 'accel', 'builder', 'mode', 'width', 'height'].every((k) => a[k] === b[k])
+    && JSON.stringify(a.camera) === JSON.stringify(b.camera);
 
 /** A failure worth asking again for later: the daemon unreachable, busy or failing for now. */
 const transient = (e) => e.status === 0 || e.status >= 500;
@@ -65,8 +78,9 @@ export class Pane {
         this.index = index;
         this.stream = `view-${index}-${Math.random().toString(36).slice(2, 10)}-${++paneCounter}`;
         this.inflight = null;      // {key, quick, controller}
-        this.shown = null;         // {key, quick, req, cam (basis), heatScale, renderMs, mrays, bounds}
-        this.lastFull = null;      // {blob, req}
+        // renderMs, mrays: over the browser's wall time; daemonMs, daemonMrays: over the daemon's render time (fetchFrame)
+        this.shown = null;         // {key, quick, req, cam (basis), heatScale, renderMs, mrays, daemonMs, daemonMrays, rays}
+        this.lastFull = null;      // {key, blob, req}: the last full frame; its blob comes later for a frame in strips
         this.error = null;
         this.stats = null;         // STATS | {error, at}
         this.statsKey = '';
@@ -95,6 +109,7 @@ export class Pane {
             <canvas class="overlay" width="640" height="480" aria-hidden="true"></canvas>
             <span class="badge building" hidden></span>
             <span class="badge quality" hidden></span>
+            <span class="badge stale" hidden></span>
             <span class="badge error" role="alert" hidden></span>
           </div>`;
         this.frame = el.querySelector('.frame');
@@ -102,6 +117,7 @@ export class Pane {
         this.overlay = el.querySelector('canvas.overlay');
         this.badgeBuilding = el.querySelector('.badge.building');
         this.badgeQuality = el.querySelector('.badge.quality');
+        this.badgeStale = el.querySelector('.badge.stale');
         this.badgeError = el.querySelector('.badge.error');
         this.titleName = el.querySelector('.tree-name');
         this.titleInfo = el.querySelector('.frame-info');
@@ -124,6 +140,11 @@ export class Pane {
     scaleKey() {
         const app = this.app;
         return app.panes.length > 1 && app.state.mode === 'heat' ? app.panes.map((p) => p.treeKey()).join(' ') : this.treeKey();
+    }
+
+    /** What identifies a frame: its request, and what its heat colours depend on. */
+    frameKey(req) {
+        return `${this.scaleKey()} ${JSON.stringify(req)}`;
     }
 
     /** The render request for the current view; quick: the moving-view frame. */
@@ -173,8 +194,49 @@ export class Pane {
         delete this.canvas.dataset.frame;
         delete this.canvas.dataset.camera;
         this.badgeQuality.hidden = true;
-        this.titleInfo.textContent = '';
+        this.markStale();
         this.app.scheduleDraw();
+    }
+
+    /** The frame shown is of another tree or mode than the pane's: its own is still to come. */
+    frameIsStale() {
+        const s = this.shown, t = this.tree();
+        return !!s && (s.req.accel !== t.accel || s.req.builder !== t.builder || s.req.mode !== this.app.state.mode);
+    }
+
+    /**
+     * Dims a stale frame with what is coming over it, and names the frame
+     * shown in the pane's title: the title's tree is the one chosen, and the
+     * image, its numbers and legend stay the old tree's until the new frame.
+     */
+    markStale() {
+        const s = this.shown, stale = this.frameIsStale();
+        this.frame.classList.toggle('stale', stale);
+        this.badgeStale.hidden = !stale;
+        if (stale) {
+            const mode = this.app.state.mode;
+            this.badgeStale.textContent = `${this.building ? 'building' : 'rendering'} ${treeLabel(this.tree())}` +
+                `${s.req.mode !== mode ? ` · ${mode}` : ''}…`;
+        }
+        this.titleInfo.textContent = !s ? '' : `${stale ? `${treeLabel(s.req)} · ${s.req.mode} frame · ` : ''}` +
+            `${s.req.width}×${s.req.height} · ${s.req.spp} spp${s.quick ? ' (quick)' : ''}`;
+    }
+
+    /** Whether the pane shows the whole full frame of the current view (what Save PNG may save). */
+    complete() {
+        const f = this.lastFull;
+        return !!(f && f.blob && this.app.model() && !this.building && f.key === this.frameKey(this.request(false)));
+    }
+
+    /**
+     * Whether the full frame `full` should be preceded by a quick frame of its
+     * view: it is expensive, and neither that quick frame nor a full frame of
+     * the same view (at other samples) is shown.
+     */
+    wantsPreview(full) {
+        if (frameSamples(full) < PREVIEW_SAMPLES) return false;
+        const s = this.error ? null : this.shown;
+        return !(s && (s.key === this.frameKey(this.request(true)) || (!s.quick && sameView(s.req, full))));
     }
 
     /** Asks for whatever frame the view wants now, if it can. */
@@ -183,16 +245,18 @@ export class Pane {
         const model = app.model();
         if (!model) return;
         const t = this.tree();
-        this.titleName.textContent = `${t.accel === 'kd' ? 'k-d' : 'BVH'} ${t.builder} · ${app.state.mode}`;
+        this.titleName.textContent = `${treeLabel(t)} · ${app.state.mode}`;
         this.frame.setAttribute('aria-label',
             `Frame of ${app.state.model}, ${t.accel} ${t.builder} tree, ${app.state.mode} mode. ` +
             'Drag to orbit, arrow keys orbit, plus and minus zoom, click to inspect a ray.');
         this.ensureTree();
+        this.markStale();
         // building this tree: its frame waits; frames of a hidden viewer would compete with a benchmark
         if (this.building || app.state.tab !== 'view') return;
-        const quick = app.moving;
-        const req = this.request(quick);
-        const key = `${this.scaleKey()} ${JSON.stringify(req)}`;
+        const full = this.request(false);
+        const quick = app.moving || this.wantsPreview(full);
+        const req = quick ? this.request(true) : full;
+        const key = this.frameKey(req);
         if (this.inflight) {
             if (this.inflight.key === key) return;
             if (!this.inflight.quick) {
@@ -229,9 +293,7 @@ export class Pane {
             this.app.panesChanged();
             return;
         }
-        this.badgeQuality.hidden = false;
-        this.badgeQuality.textContent = quick ? 'moving: quick frame' : `rendering ${req.width}×${req.height}, ${req.spp} spp…`;
-        const sent = performance.now();
+        this.showProgress(req, quick, 0, regions.length);
         let frame;
         try {
             frame = await this.fetchFrame(req, regions, flight);
@@ -259,20 +321,28 @@ export class Pane {
         this.clearError();
         const [W, H] = this.app.state.res;
         const model = this.app.model();
+        const perMs = (ms) => (ms > 0 && frame.rays !== null ? frame.rays / ms / 1e3 : null);
         this.shown = {
             key, quick, req,
             cam: cameraFromRequest(model.bounds, req.camera, W, H),
             heatScale: frame.heatScale,
-            renderMs: frame.renderMs,
-            mrays: frame.mrays,
+            renderMs: frame.wallMs,
+            mrays: perMs(frame.wallMs),
+            daemonMs: frame.daemonMs,
+            daemonMrays: perMs(frame.daemonMs),
             rays: frame.rays,
-            roundTripMs: performance.now() - sent,
         };
         this.canvas.dataset.frame = quick ? 'quick' : 'full';
         this.canvas.dataset.camera = JSON.stringify(req.camera);
         if (!quick) {
-            this.lastFull = { blob: frame.blob, req };
-            if (!frame.blob) this.canvas.toBlob((b) => { if (this.lastFull && this.lastFull.req === req) this.lastFull.blob = b; });
+            const full = { key, blob: frame.blob, req };
+            this.lastFull = full;
+            if (!frame.blob) {
+                this.canvas.toBlob((b) => {
+                    full.blob = b;
+                    this.app.panesChanged();
+                });
+            }
             if (req.mode === 'heat' && frame.heatScale > 0) this.heat = { key: this.scaleKey(), scale: frame.heatScale };
         }
         const now = performance.now();
@@ -285,35 +355,48 @@ export class Pane {
             this.frameTimes = [];
         }
         this.badgeQuality.hidden = true;
-        this.titleInfo.textContent = `${req.width}×${req.height} · ${req.spp} spp${quick ? ' (quick)' : ''}`;
+        this.markStale();
         this.app.panesChanged();
         this.pump();
     }
 
+    /** The rendering badge: the frame asked for and, for one in strips, how many of them have come. */
+    showProgress(req, quick, done, total) {
+        const [W, H] = this.app.state.res, spp = this.app.state.spp;
+        this.badgeQuality.hidden = false;
+        this.badgeQuality.textContent = this.app.moving ? 'moving: quick frame'
+            : quick ? `quick preview, then ${W}×${H} at ${spp} spp…`
+                : `rendering ${req.width}×${req.height}, ${req.spp} spp…${total > 1 ? ` ${done} of ${total} strips` : ''}`;
+    }
+
     /**
      * Asks for the frame's regions (null: the whole frame, scaled to the
-     * canvas), at most MAX_STRIPS at once, and draws each as it arrives; the
-     * canvas takes the frame's size and aspect with the first. Resolves to the
-     * frame's totals: for strips, the wall time from the first request to the
-     * last strip (they render side by side) and the rays over it; the PNG of a
-     * whole frame. A heat frame in strips is coloured to one scale: the 99th
-     * percentile of the same view at 1 spp, asked for first; a full heat frame
-     * in split view to the larger of both panes' such scales, so that a colour
-     * is the same cost in each.
+     * canvas) through the app's slots, and draws each as it arrives; the
+     * canvas takes the frame's size and aspect with the first. Resolves to
+     * the frame's totals: wallMs, from the first request to the last answer
+     * (what the browser waited, queueing included); daemonMs, the daemon's
+     * render times (X-Render-Ms) summed over the requests: each renders on
+     * one worker, so this is the frame's cost however its strips were queued
+     * or spread; the rays; the PNG of a whole frame. A heat frame in strips
+     * is coloured to one scale: the 99th percentile of the same view at 1
+     * spp, asked for first; a full heat frame in split view to the larger of
+     * both panes' such scales, so that a colour is the same cost in each.
      */
     async fetchFrame(req, regions, flight) {
         const [W, H] = this.app.state.res;
+        const { signal } = flight.controller;
         const start = performance.now();
         let heatScale = null;
         const shared = this.app.panes.length > 1 && !flight.quick;
         if (req.mode === 'heat' && (regions[0] || shared) && !req.heat_scale) {
             const views = shared ? this.app.panes.map((p) => p.request(false)) : [req];
-            heatScale = await this.app.heatScale(views, flight.controller.signal);
+            heatScale = await this.app.heatScale(views, signal);
             req = { ...req, heat_scale: heatScale };
         }
+        let done = 0;
         const part = async (region, i) => {
             const body = region ? { ...req, region, stream: `${this.stream}/${i}` } : { ...req, stream: this.stream };
-            const got = await api.renderFrame(body, { signal: flight.controller.signal });
+            const got = await this.app.slots.run(this, () => api.renderFrame(body, { signal }), signal);
             let bitmap;
             try {
                 bitmap = await createImageBitmap(got.blob);
@@ -332,24 +415,18 @@ export class Pane {
             if (region) ctx.drawImage(bitmap, region.x, region.y);
             else ctx.drawImage(bitmap, 0, 0, W, H);
             bitmap.close();
+            this.showProgress(req, flight.quick, ++done, regions.length);
             return got;
         };
-        const parts = [];
-        let next = 0;
-        const worker = async () => {
-            while (next < regions.length) {
-                const i = next++;
-                parts[i] = await part(regions[i], i);
-            }
-        };
-        await Promise.all(Array.from({ length: Math.min(MAX_STRIPS, regions.length) }, worker));
-        if (parts.length === 1) return parts[0];
-        const renderMs = performance.now() - start;
-        const rays = parts.reduce((a, p) => (p.rays === null || a === null ? null : a + p.rays), 0);
+        const parts = await Promise.all(regions.map(part));
+        const sum = (k) => parts.reduce((a, p) => (p[k] === null || a === null ? null : a + p[k]), 0);
+        const whole = parts.length === 1;
         return {
-            blob: null, renderMs, rays, heatScale,
-            mrays: renderMs > 0 && rays !== null ? rays / renderMs / 1e3 : null,
-            timing: parts.map((p) => p.timing).join('; '),
+            blob: whole ? parts[0].blob : null,
+            heatScale: whole ? parts[0].heatScale : heatScale,
+            wallMs: performance.now() - start,
+            daemonMs: sum('renderMs'),
+            rays: sum('rays'),
         };
     }
 
@@ -422,7 +499,7 @@ export class Pane {
         this.building = building;
         const tick = () => {
             const s = ((performance.now() - start) / 1000).toFixed(1);
-            this.badgeBuilding.textContent = `building ${t.accel === 'kd' ? 'k-d' : 'BVH'} ${t.builder} tree of ${name}… ${s} s`;
+            this.badgeBuilding.textContent = `building ${treeLabel(t)} tree of ${name}… ${s} s`;
         };
         tick();
         this.badgeBuilding.hidden = false;
