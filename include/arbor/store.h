@@ -95,6 +95,9 @@ bool arbor_model_name_char(char c);
  * (arbor_model_file_rank). */
 #define ARBOR_MODEL_NEXTS 4
 extern const char *const arbor_model_exts[ARBOR_MODEL_NEXTS];
+/* The index in arbor_model_exts of file's extension, in any case (the
+ * loader reads "BOX.OBJ" too); -1 for a file that is no model file. */
+int arbor_model_ext_index(const char *file);
 /* The name of the model in a file named `file`: the name less its extension
  * (.obj, .ply, .obj.gz, .ply.gz, in any case), each character a model
  * name may not hold made '_' ("rose+vase.obj" is rose_vase). False when

@@ -51,7 +51,7 @@ static bool ends_with(const char *s, const char *suffix)
 
 bool folder_is_model_file(const char *file)
 {
-    return arbor_model_file_rank(file) >= 0;
+    return arbor_model_ext_index(file) >= 0;
 }
 
 bool folder_is_material_file(const char *file)
@@ -321,10 +321,8 @@ folder_result folder_save_upload(const char *dir, const char *name, const char *
                                  folder_admit_fn admit, void *admit_ctx, char *file, size_t cap, char *err,
                                  size_t errcap)
 {
-    const char *ext = arbor_model_exts[0];
-    for (int i = 0; i < ARBOR_MODEL_NEXTS; i++)
-        if (ends_with(model, arbor_model_exts[i]))
-            ext = arbor_model_exts[i];
+    int at = arbor_model_ext_index(model);
+    const char *ext = arbor_model_exts[at >= 0 ? at : 0];
     char final[NAME_MAX + 1];
     snprintf(final, sizeof final, "%s%s", name, ext);
     record before, now, pending;

@@ -139,10 +139,8 @@ bool arbor_model_name_valid(const char *name)
 
 const char *const arbor_model_exts[ARBOR_MODEL_NEXTS] = {".obj", ".ply", ".obj.gz", ".ply.gz"};
 
-/* The index in arbor_model_exts of file's extension in any case (the
- * loader reads "BOX.OBJ" too), -1 for none; the compressed ones tried
- * first: "a.obj.gz" is a, not "a.obj". */
-static int model_ext(const char *file)
+/* The compressed extensions are tried first: "a.obj.gz" is a, not "a.obj". */
+int arbor_model_ext_index(const char *file)
 {
     size_t n = strlen(file);
     for (int i = ARBOR_MODEL_NEXTS; i-- > 0;) {
@@ -155,7 +153,7 @@ static int model_ext(const char *file)
 
 bool arbor_model_name_of_file(const char *file, char *name, size_t cap)
 {
-    int ext = model_ext(file);
+    int ext = arbor_model_ext_index(file);
     if (ext < 0)
         return false;
     size_t stem = strlen(file) - strlen(arbor_model_exts[ext]), len = stem < cap ? stem : 0;
@@ -167,7 +165,7 @@ bool arbor_model_name_of_file(const char *file, char *name, size_t cap)
 
 int arbor_model_file_rank(const char *file)
 {
-    int ext = model_ext(file);
+    int ext = arbor_model_ext_index(file);
     if (ext < 0)
         return -1;
     size_t stem = strlen(file) - strlen(arbor_model_exts[ext]);
