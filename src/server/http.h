@@ -70,7 +70,7 @@ struct arbor_server {
     bool loaded, stopping;
     render_req *frames;             /* frames admitted and not yet answered (list) */
     uint32_t nframes;               /* its length: admission counts it */
-    uint32_t inflight;              /* requests suspended, waiting for a worker */
+    uint32_t inflight;              /* requests suspended, waiting for a worker, or in their route */
     sync_load *loads;               /* models being loaded from the shared folder (sync.c) */
     sync_bad *bad;                  /* folder files that failed to load (sync.c) */
     sync_odd odd;                   /* the folder's files whose names were changed into model names (sync.c) */
@@ -192,8 +192,8 @@ bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_
                          arbor_model **model);
 
 /* sync.c: models as the shared models folder has them. sync_model returns
- * a reference to the model `name`, or NULL when r has been answered (404:
- * no such model, here or in the folder) or suspended while the model is
+ * a reference to the model `name`, or NULL when r has been answered (400:
+ * no model name; 404: no such model, here or in the folder) or suspended while the model is
  * loaded from the folder, after which r's route runs again. sync_models
  * does the same for every model (GET /api/models): false when r was
  * answered or suspended. sync_exists: whether model `name` exists as the
@@ -201,6 +201,8 @@ bool render_read_request(http_req *r, bool ray, render_spec *spec, arbor_render_
  * whose file is still there (or that came from none); a model another
  * daemon deleted does not, though this one has not unloaded it yet. */
 arbor_model *sync_model(http_req *r, const char *name);
+/* Whether a model name from a body or a query is one (false: 400 made). */
+bool sync_name_valid(http_req *r, const char *name);
 bool sync_models(http_req *r);
 bool sync_exists(arbor_server *s, const char *name);
 void sync_forget(arbor_server *s); /* frees the records of failed and of renamed files */

@@ -300,11 +300,8 @@ static bool read_bench(http_req *r, const cJSON *body, job *j)
         http_reply_error(r, 400, "bad_request", "model (a string) is required");
         return false;
     }
-    size_t len = strlen(model->valuestring);
-    if (len < 1 || len >= sizeof j->model_name) {
-        http_reply_error(r, 400, "bad_request", "model must be 1..%zu characters", sizeof j->model_name - 1);
+    if (!sync_name_valid(r, model->valuestring))
         return false;
-    }
     arbor_bench_opts_init(&j->opts);
     memset(j->opts.kinds, 0, sizeof j->opts.kinds);
     memset(j->opts.builders, 0, sizeof j->opts.builders);

@@ -819,6 +819,31 @@ static void on_body(http_req *r, const char *data, size_t size)
     r->body_len += size;
 }
 
+/* Runs r's route unless the server is stopping. The stop waits once for
+ * `inflight` to fall to 0, and libmicrohttpd aborts on a connection
+ * suspended after that: so a route counts as in flight while it runs, and
+ * none that may suspend starts once `stopping` is set (the probes never
+ * suspend, and /readyz says "stopping"). */
+static void dispatch_unless_stopping(http_req *r, const char *url)
+{
+    arbor_server *s = r->srv;
+    bool probe = r->route == ROUTE_HEALTHZ || r->route == ROUTE_READYZ || r->route == ROUTE_METRICS;
+    pthread_mutex_lock(&s->lock);
+    bool refuse = s->stopping && !probe;
+    if (!refuse)
+        s->inflight++;
+    pthread_mutex_unlock(&s->lock);
+    if (refuse) {
+        http_reply_error(r, 503, "busy", "the daemon is shutting down");
+        return;
+    }
+    dispatch(r, url);
+    pthread_mutex_lock(&s->lock);
+    if (--s->inflight == 0)
+        pthread_cond_broadcast(&s->idle);
+    pthread_mutex_unlock(&s->lock);
+}
+
 static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const char *url, const char *method,
                                   const char *version, const char *upload_data, size_t *upload_data_size,
                                   void **con_cls)
@@ -862,7 +887,7 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
         r->suspended = false;
         if (r->redispatch) {
             r->redispatch = false;
-            dispatch(r, url);
+            dispatch_unless_stopping(r, url);
             if (r->suspended)
                 return MHD_YES;
         }
@@ -872,7 +897,7 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *conn, const 
         if (r->too_large)
             http_reply_error(r, 413, "too_large", "the body is over the limit of %zu bytes", r->limit);
         else
-            dispatch(r, url);
+            dispatch_unless_stopping(r, url);
     }
     if (r->suspended)
         return MHD_YES;

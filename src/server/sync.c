@@ -434,8 +434,19 @@ static sync_state settle(http_req *r, const char *name, arbor_model *m, arbor_er
     return st;
 }
 
+bool sync_name_valid(http_req *r, const char *name)
+{
+    if (arbor_model_name_valid(name))
+        return true;
+    http_reply_error(r, 400, "bad_request", "'%s' is no model name: names are " ARBOR_MODEL_NAME_RULE, name);
+    return false;
+}
+
 arbor_model *sync_model(http_req *r, const char *name)
 {
+    /* The name makes a path in the folder: "../x" would read files outside it. */
+    if (!sync_name_valid(r, name))
+        return NULL;
     arbor_model *m = arbor_store_acquire_model(r->srv->store, name);
     arbor_err bad;
     char path[PATH_MAX];

@@ -1,10 +1,14 @@
-"""Token rules: --token-file guards state changes (401); a non-loopback bind without one refuses them (403)."""
+"""Token rules: --token-file guards state changes (401); a non-loopback bind without one refuses them (403).
+Model names from bodies and queries never reach files outside the models folder."""
 import os
+import re
 import subprocess
 import tempfile
 import time
+import urllib.parse
 
-from harness import (Daemon, check, eq, expect_error, expect_json, expect_ok, ignore, multipart, our, shared, test)
+from harness import (Daemon, check, eq, expect_error, expect_json, expect_ok, ignore, main_daemon, multipart, our, shared,
+                     test)
 
 TOKEN = "arbor-test-token-5b0d9e"
 OBJ = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
@@ -164,3 +168,27 @@ def test_token_scheme_name_in_any_case():
         eq(r.status, 200, "%s <token>: %s" % (scheme, r.short()))
     expect_error(d.post("/api/models/cornell/trees", {"accel": "kd", "builder": "median"},
                         headers={"Authorization": "bearer " + TOKEN.upper()}), 401, "unauthorized")
+
+
+@test
+def test_model_names_in_bodies_and_queries_stay_in_the_folder():
+    """A model name is a file name in the models folder: "../x" named a file beside it, which the daemon read
+    (its contents in the error) or served; a name of 65 characters was read again on every retry."""
+    d = main_daemon()
+    secret = "zzSECRETzz"
+    with open(os.path.join(d.tmp, "leak.obj"), "w") as f:
+        f.write("v 0 0 0\nv " + secret + " 0 0\n")
+    with open(os.path.join(d.tmp, "outside.obj"), "w") as f:
+        f.write("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    before = sorted(m["name"] for m in d.get("/api/models").json()["models"])
+    view = {"width": 16, "height": 12}
+    for name in ("../leak", "../outside", "./../models/../outside", "n" * 65):
+        q = urllib.parse.quote(name, safe="")
+        for r in (d.get("/api/stats?model=" + q),
+                  d.get("/api/render?model=%s&width=16&height=12" % q),
+                  d.post("/api/render", dict(view, model=name)),
+                  d.post("/api/ray", dict(view, model=name, x=1, y=1)),
+                  d.post("/api/bench", {"model": name, "accel": ["bvh"], "builder": ["sah"], "runs": 1})):
+            e = expect_error(r, 400, "bad_request", re.compile("is no model name|model must be 1..64 characters"))
+            check(secret not in e["message"], "%s: the message shows the outside file: %r" % (r.req, e["message"]))
+    eq(sorted(m["name"] for m in d.get("/api/models").json()["models"]), before, "models after the outside names")
