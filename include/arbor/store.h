@@ -24,7 +24,8 @@
  * needed; nothing already loaded is touched.
  *
  * Threads: every function may be called from any thread. The store never
- * blocks on a build except in arbor_store_destroy, which cancels them first.
+ * blocks on a build except in arbor_store_stop_builds and
+ * arbor_store_destroy, which cancel them first.
  * Build callbacks run on pool workers, never under the store's lock.
  */
 #ifndef ARBOR_STORE_H

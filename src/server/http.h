@@ -169,10 +169,10 @@ cJSON *http_body_json(http_req *r);
 /* ---- routes ---- */
 void route_models(http_req *r, const char *name, const char *rest);  /* models.c */
 void route_render(http_req *r);                                        /* render_route.c */
-void route_ray(http_req *r);                                           /* render_route.c */
+void route_ray(http_req *r);                                           /* inspect.c */
 void route_stats(http_req *r);                                         /* stats.c */
 void route_tree_build(http_req *r, arbor_model *m);                    /* stats.c */
-void route_boxes(http_req *r, arbor_model *m, const char *accel, const char *builder); /* stats.c */
+void route_boxes(http_req *r, arbor_model *m, const char *accel, const char *builder); /* inspect.c */
 void route_bench(http_req *r);                                         /* jobs.c */
 void route_job(http_req *r, const char *id);                           /* jobs.c */
 void route_static(http_req *r, const char *path);                      /* static.c */

@@ -179,6 +179,7 @@ static arbor_model *cancel_locked(job *j)
         return NULL;
     j->state = JOB_CANCELLED;
     j->ended_ms = arbor_now_ms();
+    snprintf(j->error, sizeof j->error, "cancelled while queued"); /* a running one says where it stopped */
     arbor_model *m = j->model;
     j->model = NULL;
     return m;

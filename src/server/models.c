@@ -663,7 +663,7 @@ static void below_model(http_req *r, const char *name, const char *rest)
         return;
     char accel[16], builder[16];
     int end = 0; /* where the match ended: sscanf's count ignores the literal after the last field */
-    if (r->route == ROUTE_TREES)
+    if (r->route == ROUTE_TREES && strcmp(rest, "/trees") == 0) /* classify saw only the path's end */
         route_tree_build(r, m);
     else if (sscanf(rest, "/trees/%15[^/]/%15[^/]/boxes%n", accel, builder, &end) == 2 && end > 0 &&
              rest[end] == '\0')

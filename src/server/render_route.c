@@ -473,7 +473,7 @@ void route_render(http_req *r)
     http_suspend(r);
     if (!admit(s, rr)) {
         metrics_frame_rejected(&s->metrics);
-        http_reply_error(r, 503, "busy", "%u frames are rendering or queued (--threads + --queue); try again",
+        http_reply_error(r, 503, "busy", "all %u frame slots (--threads + --queue) are taken; try again",
                          (unsigned)(s->config.threads + s->config.queue));
         http_reply_header(r, "Retry-After", "1");
         rr->answered = true;

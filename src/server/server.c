@@ -781,6 +781,15 @@ static bool on_headers(http_req *r, const char *method)
     /* Refuse an unauthorised upload before its body, not after storing it. */
     if (r->upload && !http_may_write(r))
         return false;
+    /* An upload's gzip is known by its magic bytes; any other coding would be parsed as the model. */
+    const char *coding = r->upload ? MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND,
+                                                                 MHD_HTTP_HEADER_CONTENT_ENCODING)
+                                   : NULL;
+    if (coding != NULL && strcasecmp(coding, "gzip") != 0 && strcasecmp(coding, "x-gzip") != 0 &&
+        strcasecmp(coding, "identity") != 0) {
+        http_reply_error(r, 415, "unsupported_media_type", "Content-Encoding '%s' is not read (gzip is)", coding);
+        return false;
+    }
     const char *length = MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
     if (length != NULL && strtoull(length, NULL, 10) > r->limit) {
         http_reply_error(r, 413, "too_large", "the body of %s bytes is over the limit of %zu bytes", length,

@@ -25,7 +25,9 @@
  * The checks are stat(2) calls on the polling thread (metadata only: no
  * file is read there; a name without NAME.EXT, which may be a renamed
  * file's, also stats the folder, whose entries are read again only when it
- * has changed: sync_odd); reading and parsing happen on the pool.
+ * has changed: sync_odd); reading and parsing happen on the pool. GET
+ * /api/models alone reads the folder's entries each time, to find the
+ * files other daemons added: one readdir and a stat per model.
  */
 #include <dirent.h>
 #include <limits.h>

@@ -340,19 +340,31 @@ static int by_last_used(const void *a, const void *b)
     return (x->last_used > y->last_used) - (x->last_used < y->last_used);
 }
 
+static void fail_nospace(arbor_store *s, uint64_t need, const char *what, arbor_err *e)
+{
+    uint64_t used = used_bytes(s), limit = s->config.max_memory;
+    arbor_fail(e, ARBOR_ERR_NOSPACE,
+               "%s needs %llu bytes; %llu of the %llu-byte memory budget are in use and cannot be freed "
+               "(trees being rendered are never evicted)",
+               what, (unsigned long long)need, (unsigned long long)(used < limit ? used : limit),
+               (unsigned long long)limit);
+}
+
 /* Makes room for `need` more bytes by evicting ready trees that only the
  * store holds, least recently used first, into *d (their bytes come back
  * when d is released; `pending` counts them meanwhile). Evicts nothing when
- * even all of them would not make enough room. `spare` is a model whose
- * trees are about to go anyway (a replaced one), or NULL. Lock held. */
-static bool make_room(arbor_store *s, uint64_t need, const arbor_model *spare, dropped *d, uint64_t *pending)
+ * even all of them would not make enough room: false, e saying so of
+ * `what` (of `need_named` bytes), or that memory ran out. `spare` is a model
+ * whose trees are about to go anyway (a replaced one), or NULL. Lock held. */
+static bool make_room(arbor_store *s, uint64_t need, const arbor_model *spare, dropped *d, uint64_t *pending,
+                      const char *what, uint64_t need_named, arbor_err *e)
 {
     uint64_t limit = s->config.max_memory, used = used_bytes(s) - *pending;
     if (limit == 0 || used + need <= limit)
         return true;
     tree_slot **cand = malloc(d->cap * sizeof *cand);
     if (cand == NULL)
-        return false;
+        return arbor_fail(e, ARBOR_ERR_NOMEM, "out of memory making room for %s", what);
     uint32_t n = 0;
     uint64_t can_free = 0;
     for (uint32_t i = 0; i < s->nmodels; i++)
@@ -374,19 +386,11 @@ static bool make_room(arbor_store *s, uint64_t need, const arbor_model *spare, d
             cand[i]->tree = NULL;
             cand[i]->state = ARBOR_TREE_ABSENT;
         }
+    } else {
+        fail_nospace(s, need_named, what, e);
     }
     free(cand);
     return ok;
-}
-
-static void fail_nospace(arbor_store *s, uint64_t need, const char *what, arbor_err *e)
-{
-    uint64_t used = used_bytes(s), limit = s->config.max_memory;
-    arbor_fail(e, ARBOR_ERR_NOSPACE,
-               "%s needs %llu bytes; %llu of the %llu-byte memory budget are in use and cannot be freed "
-               "(trees being rendered are never evicted)",
-               what, (unsigned long long)need, (unsigned long long)(used < limit ? used : limit),
-               (unsigned long long)limit);
 }
 
 /* Bytes a replaced model would give back at once: its own, if no frame
@@ -441,14 +445,11 @@ bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, a
     bool found, ok = dropped_init(s, &d, e) && table_grow(s, e);
     uint32_t at = table_find(s, name, &found);
     if (ok && found && !(flags & ARBOR_ADD_REPLACE))
-        ok = arbor_fail(e, ARBOR_ERR_EXISTS, "model '%s' exists (replace it with ?replace=1)", name);
+        ok = arbor_fail(e, ARBOR_ERR_EXISTS, "model '%s' exists", name);
     if (ok) {
         arbor_model *old = found ? s->models[at] : NULL;
         uint64_t pending = old != NULL ? bytes_freed_by_detach(old) : 0;
-        if (!make_room(s, m->bytes, old, &d, &pending)) {
-            fail_nospace(s, m->bytes, "the model", e);
-            ok = false;
-        }
+        ok = make_room(s, m->bytes, old, &d, &pending, "the model", m->bytes, e);
     }
     if (ok) {
         if (found)
@@ -628,8 +629,8 @@ static void build_run(void *ctx, uint32_t task)
     } else if (t != NULL) {
         /* The estimate may have been low: make room now or give the tree up. */
         uint64_t pending = 0;
-        if (dropped_init(s, &d, &err) && !make_room(s, 0, NULL, &d, &pending))
-            fail_nospace(s, t->bytes, "the tree", &err);
+        if (dropped_init(s, &d, &err))
+            make_room(s, 0, NULL, &d, &pending, "the tree", t->bytes, &err);
     }
     bool filed = t != NULL && err.status == ARBOR_OK;
     if (b->model->detached) {

@@ -118,7 +118,10 @@ def test_bench_jobs_queued_are_bounded():
         for jid in ids:
             expect_json(d.req("DELETE", "/api/jobs/%s" % jid))
         for jid in ids:
-            _poll(d, jid, ("cancelled", "done", "failed"), 30)
+            job, _ = _poll(d, jid, ("cancelled", "done", "failed"), 30)
+            # the last was queued behind seven others when cancelled: it says so, as a stopped one does
+            if jid == ids[-1]:
+                eq((job["state"], job["error"]), ("cancelled", "cancelled while queued"), "a queued job cancelled")
         expect_json(d.post("/api/bench", dict(body, runs=1, accel=["bvh"], builder=["median"])), 202)
         d.stop_clean()
     finally:

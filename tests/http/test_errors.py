@@ -168,6 +168,10 @@ CASES = [
      400, "bad_request", "leaves"),
     ("boxes_path_longer", "main", "GET", "/api/models/cornell/trees/bvh/sah/boxes/extra", None,
      404, "not_found", None),
+    ("trees_path_longer", "main", "POST", "/api/models/cornell/boxes/trees", {"accel": "bvh", "builder": "sah"},
+     404, "not_found", None),
+    ("trees_path_deeper", "main", "POST", "/api/models/cornell/a/b/trees", {"accel": "bvh", "builder": "sah"},
+     404, "not_found", None),
     ("boxes_path_shorter", "main", "GET", "/api/models/cornell/trees/bvh/sah", None, 404, "not_found", None),
     ("stats_unknown_param", "main", "GET", "/api/stats?foo=1", None, 400, "bad_request", "foo"),
     ("query_hex_number", "main", "GET", "/api/render?model=cornell&width=0x10&height=12", None,
@@ -323,6 +327,18 @@ def test_error_put_of_a_multipart_body():
                  "unsupported_media_type", "POST")
     eq([f for f in os.listdir(d.models_dir) if f.startswith("mp.")], [], "files the refused PUT left")
     expect_error(d.req("GET", "/api/models/mp"), 404, "not_found")
+
+
+@test
+def test_error_upload_in_a_coding_not_read():
+    """A body in a Content-Encoding the daemon does not decode (br, deflate) is a 415 naming it (RFC 9110
+    15.5.16), not bytes parsed as a model: these happen to be plain OBJ, and were saved as one."""
+    d = limits_daemon()
+    for coding in ("br", "deflate"):
+        r = d.req("PUT", "/api/models/coded", body=b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+                  headers={"Content-Encoding": coding})
+        expect_error(r, 415, "unsupported_media_type", coding)
+        expect_error(d.req("GET", "/api/models/coded"), 404, "not_found")
 
 
 @test

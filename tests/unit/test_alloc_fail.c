@@ -319,13 +319,18 @@ static arbor_tree *acquire_wait(arbor_store *s, arbor_model *m, arbor_accel_kind
     return box.tree;
 }
 
-static arbor_store *new_store(void)
+static arbor_store *new_store_within(uint64_t max_memory)
 {
-    arbor_store_config c = {pool, 2, 0, NULL, NULL};
+    arbor_store_config c = {pool, 2, max_memory, NULL, NULL};
     arbor_err e;
     arbor_store *s = arbor_store_create(&c, &e);
     TEST_ASSERT_NOT_NULL_MESSAGE(s, e.msg);
     return s;
+}
+
+static arbor_store *new_store(void)
+{
+    return new_store_within(0);
 }
 
 static void add_sphere(arbor_store *s, const char *name, unsigned flags)
@@ -336,12 +341,41 @@ static void add_sphere(arbor_store *s, const char *name, unsigned flags)
     TEST_ASSERT_TRUE_MESSAGE(arbor_store_add_model(s, name, "sphere", &m, flags, NULL, &e), e.msg);
 }
 
-static void test_store_add_model(void)
+static void settle(arbor_store *s);
+
+/* Model `name`'s bvh:sah tree built, and held by the store alone (evictable). */
+static void ensure_tree(arbor_store *s, const char *name)
+{
+    arbor_model *m = arbor_store_acquire_model(s, name);
+    TEST_ASSERT_NOT_NULL(m);
+    arbor_err e;
+    arbor_tree *t = acquire_wait(s, m, ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH, &e);
+    TEST_ASSERT_NOT_NULL_MESSAGE(t, e.msg);
+    arbor_tree_release(t);
+    arbor_model_release(m);
+    settle(s);
+}
+
+/* Adds model b beside a, in a store whose budget is unlimited, or (tight)
+ * holds a, its bvh:sah tree and b only once that tree is evicted: the
+ * room made for b allocates too, and its failing is out of memory, not a
+ * full budget. */
+static void sweep_store_add_model(bool tight)
 {
     arbor_store *s = new_store();
     add_sphere(s, "a", 0);
+    if (tight) {
+        ensure_tree(s, "a");
+        arbor_store_usage u;
+        arbor_store_usage_of(s, &u);
+        arbor_store_destroy(s);
+        s = new_store_within(u.models + u.trees + u.models - 1);
+        add_sphere(s, "a", 0);
+    }
     long n;
     for (n = 1; n < SWEEP_MAX; n++) {
+        if (tight)
+            ensure_tree(s, "a");
         arbor_mesh m;
         arbor_err e;
         long before = alloc_hook_live();
@@ -357,23 +391,35 @@ static void test_store_add_model(void)
             arbor_model_release(b);
             TEST_ASSERT_TRUE(arbor_store_remove_model(s, "b", &e));
         } else {
-            expect_nomem("add model", n, &e);
+            expect_nomem(tight ? "add model making room" : "add model", n, &e);
             TEST_ASSERT_NULL_MESSAGE(b, "a failed add left the model listed");
             TEST_ASSERT_EQUAL_UINT32_MESSAGE(320, m.ntris, "a failed add took the mesh");
             arbor_mesh_free(&m);
         }
-        /* What was loaded before is untouched. */
+        /* What was loaded before is untouched (its evicted tree built again). */
         arbor_model *a = arbor_store_acquire_model(s, "a");
         TEST_ASSERT_NOT_NULL(a);
         arbor_model_release(a);
-        expect_no_leak("add model", n, before);
+        if (tight)
+            ensure_tree(s, "a");
+        expect_no_leak(tight ? "add model making room" : "add model", n, before);
         if (!fired) {
             TEST_ASSERT_TRUE_MESSAGE(ok, e.msg);
             break;
         }
     }
-    check_sweep_ended("store add model", n);
+    check_sweep_ended(tight ? "store add model making room" : "store add model", n);
     arbor_store_destroy(s);
+}
+
+static void test_store_add_model(void)
+{
+    sweep_store_add_model(false);
+}
+
+static void test_store_add_model_making_room(void)
+{
+    sweep_store_add_model(true);
 }
 
 /* Waits for the store's builds (s may be NULL) to end and for the blocks
@@ -762,6 +808,7 @@ int main(void)
     RUN_TEST(test_load_ply_binary);
     RUN_TEST(test_build_every_tree);
     RUN_TEST(test_store_add_model);
+    RUN_TEST(test_store_add_model_making_room);
     RUN_TEST(test_store_builds_trees);
     RUN_TEST(test_render_every_mode);
     RUN_TEST(test_serve_requests);
