@@ -111,17 +111,22 @@ struct http_req {
     uint8_t sync_rounds;             /* models loaded for it so far (sync.c) */
 };
 
-/* ---- JSON (server.c) ----
+/* ---- JSON (http.c) ----
  * cJSON's AddItemToObject and AddItemToArray leave the item to the caller
  * when it cannot be added (no memory for the key, or no parent because
  * making the parent failed); these free it. Every cJSON allocation that
  * fails also marks the thread, as SQLite's mallocFailed does, so that an
  * answer missing a part is never sent: http_reply_json answers 507 instead
- * (and clears the mark). */
+ * (and clears the mark). json_malloc is cJSON's allocator (the server
+ * installs it); json_oom_clear drops a mark that no answer owns. */
 void json_put(cJSON *object, const char *key, cJSON *item);
 void json_push(cJSON *array, cJSON *item);
+void *json_malloc(size_t n);
+void json_oom_clear(void);
 
-/* ---- replies (server.c) ---- */
+/* ---- replies (http.c) ---- */
+/* The body of the server's ready-made 507 (arbor_server.oom). */
+#define OOM_BODY "{\"error\":{\"code\":\"insufficient_memory\",\"message\":\"out of memory\"}}\n"
 /* Stores a JSON answer (takes ownership of body). */
 void http_reply_json(http_req *r, unsigned status, cJSON *body);
 /* Stores {"error":{"code","message"}}. */
@@ -137,7 +142,7 @@ void http_reply_buffer(http_req *r, unsigned status, const char *content_type, v
 /* Adds a header to the stored response. */
 void http_reply_header(http_req *r, const char *name, const char *value);
 
-/* ---- suspension (server.c) ---- */
+/* ---- suspension (http.c) ---- */
 /* The handler hands r to a worker: suspends the connection and takes a
  * reference for the worker. */
 void http_suspend(http_req *r);
@@ -151,7 +156,7 @@ void http_req_release(http_req *r);
  * released. */
 void http_queue(http_req *r, void (*run)(void *ctx, uint32_t task), void (*release)(void *ctx), void *ctx);
 
-/* ---- helpers (server.c) ---- */
+/* ---- helpers (http.c) ---- */
 const char *http_arg(http_req *r, const char *key);
 /* Whether every query parameter is one of `known` ("a, b, c"; "" for a
  * route that takes none), each given once; replies 400 naming the first
@@ -207,10 +212,11 @@ bool sync_models(http_req *r);
 bool sync_exists(arbor_server *s, const char *name);
 void sync_forget(arbor_server *s); /* frees the records of failed and of renamed files */
 
-/* server.c: frames and rays are refused (503) until the daemon is ready,
+/* http.c: frames and rays are refused (503) until the daemon is ready,
  * so that a load balancer passes them to a node that is; false with the
- * answer made. */
+ * answer made. server_ready_locked: ready, with s->lock held. */
 bool http_ready_for_frames(http_req *r);
+bool server_ready_locked(const arbor_server *s);
 
 /* jobs.c */
 job_table *jobs_create(arbor_pool *pool);
