@@ -93,9 +93,9 @@ export async function startDaemon({ shared = [], extraArgs = [] } = {}) {
 
 /**
  * Launches Debian's chromium headless with a fresh profile. Collects console
- * errors and page errors in `errors`.
+ * errors and page errors in `errors`. dpr: device pixels per CSS pixel.
  */
-export async function openBrowser({ viewport = { width: 1280, height: 800 }, mobile = false, colorScheme = 'dark' } = {}) {
+export async function openBrowser({ viewport = { width: 1280, height: 800 }, mobile = false, colorScheme = 'dark', dpr = 1 } = {}) {
     const profile = fs.mkdtempSync(path.join(os.tmpdir(), 'arbor-chromium-'));
     const context = await chromium.launchPersistentContext(profile, {
         executablePath: '/usr/bin/chromium',
@@ -103,7 +103,7 @@ export async function openBrowser({ viewport = { width: 1280, height: 800 }, mob
         args: ['--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run', '--disable-background-networking',
             '--disable-component-update', '--disable-sync'],
         viewport,
-        deviceScaleFactor: 1,
+        deviceScaleFactor: dpr,
         isMobile: mobile,
         hasTouch: mobile,
         colorScheme,

@@ -123,7 +123,8 @@ export function project(c, p) {
     return q[2] > 1e-9 ? cameraToImage(c, q) : null;
 }
 
-const NEAR = 1e-6;
+// the near plane of projectSegment, relative to the segment's depths (overlay.js tells when no edge of a box reaches it)
+export const NEAR = 1e-6;
 
 /** A world segment clipped to the front of the eye, as two image points, or null. */
 export function projectSegment(c, a, b) {

@@ -11,6 +11,7 @@ import { Compare } from './compare.js';
 import { Uploader } from './upload.js';
 import { Slots } from './slots.js';
 import { savePanes } from './save.js';
+import { renderKey, treeDepths, rayParts } from './overlay.js';
 
 const ACCELS = ['bvh', 'kd'];
 const BUILDERS = ['spatial', 'median', 'mean', 'sah'];
@@ -122,7 +123,8 @@ class App {
         this.maxSamples = MAX_SAMPLES;
         this.slots = new Slots(RENDER_SLOTS);
         this.dark = matchMedia('(prefers-color-scheme: dark)');
-        this.dark.addEventListener('change', () => this.pumpAll());
+        // frames take the scheme's background, the overlay and its key the scheme's colours
+        this.dark.addEventListener('change', () => { this.pumpAll(); this.scheduleDraw(); });
     }
 
     model() {
@@ -538,6 +540,18 @@ class App {
         save.title = complete ? (this.panes.length > 1 ? 'Both panes side by side, each under its title' : '')
             : 'Waiting for the full frame of this view';
         for (const p of this.panes) p.drawOverlay();
+        this.renderOverlayKey();
+    }
+
+    /** The key to what the panes' overlays draw: the depths of their boxes (in split view, of both) and the ray's parts. */
+    renderOverlayKey() {
+        const depths = new Set(), parts = [];
+        for (const p of this.panes) {
+            const { boxes, ray } = p.overlayContent();
+            if (boxes) for (const d of treeDepths(boxes.data)) depths.add(d);
+            if (ray) parts.push(...rayParts(ray.data));
+        }
+        renderKey($('overlay-key'), [...depths].sort((a, b) => a - b), parts, !this.dark.matches);
     }
 
     /** Which tree's levels the depth slider walks: the one rays traverse, shallower than a BVH's binary tree in the stats. */

@@ -1,69 +1,242 @@
-// overlay.js - wireframes of tree boxes and a ray's visited boxes, drawn over
-// a frame with the camera that frame used (camera.js, the renderer's maths).
+// overlay.js - what is drawn over a frame with the camera that frame used
+// (camera.js, the renderer's maths): the tree's boxes, a colour per depth, and
+// an inspected ray's path (the boxes it visited, the ray, its hit), and the key
+// under the frames that names those colours. The tree's colours are cool and
+// the path's warm with a dark casing, so that the path stands out from the
+// tree it runs through; tree colours are darker on a light frame background.
 
-import { BOX_EDGES, boxCorners, projectSegment, project } from './camera.js';
+import { BOX_EDGES, boxCorners, projectSegment, project, boundsFrame, add, scale, NEAR } from './camera.js';
 
-/** A colour per depth: a hue walk that keeps neighbouring depths apart. */
-export function depthColour(depth, alpha = 1) {
-    const hue = (depth * 47 + 190) % 360;
-    return `hsla(${hue}, 85%, 58%, ${alpha})`;
+// depth d's hue: d times the golden ratio, modulo 1, of the cool arc, so that neighbouring depths lie far apart
+const GOLDEN = 0.6180339887;
+const HUE_FROM = 140, HUE_SPAN = 140; // green through cyan and blue to violet: no red, orange, yellow or magenta
+// more boxes than this are drawn one device pixel wide: Chromium strokes such hairlines 10 to 40 times
+// faster than wider lines, which is what lets 20,000 boxes redraw while orbiting
+const WIDE_BOXES = 300;
+const CASING = 'rgba(0, 0, 0, 0.75)';
+const EDGES = BOX_EDGES.flat();
+
+/** A tree box's colour at `depth` (CSS); light: for a light frame background. */
+function depthColour(depth, light = false) {
+    const hue = HUE_FROM + ((depth * GOLDEN) % 1) * HUE_SPAN;
+    return `hsl(${Math.round(hue)}, 80%, ${light ? 30 : 64}%)`;
+}
+
+/** The parts of a ray's path, as drawn and as the key names them. */
+const RAY_PARTS = {
+    inner: { colour: '#ffc53d', label: 'inner box entered' },
+    leaf: { colour: '#ff5b2e', label: 'leaf, triangles tested' },
+    empty: { colour: '#ff5b2e', dash: [4, 3], label: 'empty leaf' },
+    ray: { colour: '#ffffff', label: 'the ray (a line once the view turns)' },
+    hit: { colour: '#ffffff', label: 'hit point' },
+    miss: { colour: '#a0a8b8', label: 'no hit' },
+};
+
+/**
+ * The projection of frame camera `cam` onto a canvas of w x h pixels showing
+ * that frame scaled: camera.js's cameraToImage with its constants taken once.
+ */
+export function canvasView(cam, w, h) {
+    const aspect = cam.width / cam.height;
+    return { cam, w, h, sx: w / cam.width, sy: h / cam.height, kx: (0.5 * w) / (cam.tanHalfFov * aspect), ky: (0.5 * h) / cam.tanHalfFov };
+}
+
+// a box's corners in camera space (x, y, z) and on the canvas (x, y): reused for every box
+const Q = new Float64Array(24), P = new Float64Array(16);
+
+/**
+ * Adds box b's twelve edges to `path`: its eight corners projected once each,
+ * nothing for a box wholly off the canvas; a box reaching behind the eye has
+ * each edge clipped by camera.js's projectSegment.
+ */
+function addBox(path, v, b) {
+    const { eye, right: r, up: u, forward: f } = v.cam, lo = b.min, hi = b.max;
+    let zmin = Infinity, zabs = 0;
+    for (let i = 0; i < 8; i++) {
+        const x = (i & 1 ? hi[0] : lo[0]) - eye[0], y = (i & 2 ? hi[1] : lo[1]) - eye[1], z = (i & 4 ? hi[2] : lo[2]) - eye[2];
+        const qz = x * f[0] + y * f[1] + z * f[2];
+        Q[3 * i] = x * r[0] + y * r[1] + z * r[2];
+        Q[3 * i + 1] = x * u[0] + y * u[1] + z * u[2];
+        Q[3 * i + 2] = qz;
+        zmin = Math.min(zmin, qz);
+        zabs = Math.max(zabs, Math.abs(qz));
+    }
+    // projectSegment's near plane for any edge of the box: at or past it, no edge is clipped
+    if (zmin < NEAR * (1 + 2 * zabs)) {
+        const k = boxCorners(b);
+        for (let e = 0; e < EDGES.length; e += 2) {
+            const s = projectSegment(v.cam, k[EDGES[e]], k[EDGES[e + 1]]);
+            if (!s) continue;
+            path.moveTo(s[0][0] * v.sx, s[0][1] * v.sy);
+            path.lineTo(s[1][0] * v.sx, s[1][1] * v.sy);
+        }
+        return;
+    }
+    let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+    for (let i = 0; i < 8; i++) {
+        const z = Q[3 * i + 2];
+        const x = 0.5 * v.w + (v.kx * Q[3 * i]) / z, y = 0.5 * v.h - (v.ky * Q[3 * i + 1]) / z;
+        P[2 * i] = x;
+        P[2 * i + 1] = y;
+        x0 = Math.min(x0, x); x1 = Math.max(x1, x);
+        y0 = Math.min(y0, y); y1 = Math.max(y1, y);
+    }
+    if (x1 < -2 || y1 < -2 || x0 > v.w + 2 || y0 > v.h + 2) return;
+    // the twelve edges as the two faces of constant z, closed, and the four edges between them: fewer path calls
+    for (const z of [0, 8]) {
+        path.moveTo(P[z], P[z + 1]);
+        path.lineTo(P[z + 2], P[z + 3]);
+        path.lineTo(P[z + 6], P[z + 7]);
+        path.lineTo(P[z + 4], P[z + 5]);
+        path.lineTo(P[z], P[z + 1]);
+    }
+    for (let i = 0; i < 8; i += 2) {
+        path.moveTo(P[i], P[i + 1]);
+        path.lineTo(P[i + 8], P[i + 9]);
+    }
 }
 
 /**
- * Draws boxes on a 2D context whose pixel grid is `sx` x `sy` times the
- * frame's (cam.width x cam.height). style(box, i) -> {colour, width} or null.
- * One path per style, stroked once: thousands of boxes share a few depths' colours.
+ * Strokes `paths` (a Path2D or null for each of `layers`, in drawing order);
+ * a layer is {colour, width, alpha, dash, casing}. The casings, a dark line
+ * under a layer's own, go first, so that none cuts through another's lines.
  */
-export function drawBoxes(ctx, cam, boxes, sx, sy, style) {
-    const paths = new Map(); // "colour width" -> {s, path}
-    for (let i = 0; i < boxes.length; i++) {
-        const b = boxes[i];
-        const s = style(b, i);
-        if (!s) continue;
-        const id = `${s.colour} ${s.width}`;
-        let p = paths.get(id);
-        if (!p) paths.set(id, p = { s, path: new Path2D() });
-        const corners = boxCorners(b);
-        for (const [i0, i1] of BOX_EDGES) {
-            const seg = projectSegment(cam, corners[i0], corners[i1]);
-            if (!seg) continue;
-            p.path.moveTo(seg[0][0] * sx, seg[0][1] * sy);
-            p.path.lineTo(seg[1][0] * sx, seg[1][1] * sy);
+function strokeLayers(ctx, layers, paths) {
+    for (const pass of ['casing', 'colour']) {
+        layers.forEach((l, i) => {
+            if (!paths[i] || (pass === 'casing' && !l.casing)) return;
+            // round ends close a cased box's corners; hairlines keep the default, their fast path
+            ctx.lineCap = l.casing ? 'round' : 'butt';
+            ctx.globalAlpha = l.alpha ?? 1;
+            ctx.setLineDash(pass === 'colour' && l.dash ? l.dash.map((d) => d * l.width) : []);
+            ctx.strokeStyle = pass === 'casing' ? CASING : l.colour;
+            ctx.lineWidth = pass === 'casing' ? l.width + l.casing : l.width;
+            ctx.stroke(paths[i]);
+        });
+    }
+    ctx.globalAlpha = 1;
+    ctx.setLineDash([]);
+}
+
+/** Adds `boxes` to one path per layer: layerOf(box) is the index of its layer, or -1 for none. */
+function boxPaths(v, boxes, layerCount, layerOf) {
+    const paths = new Array(layerCount).fill(null);
+    for (const b of boxes) {
+        const k = layerOf(b);
+        if (k >= 0) addBox(paths[k] ??= new Path2D(), v, b);
+    }
+    return paths;
+}
+
+const depthsOf = new WeakMap(); // boxes answer -> its depths: asked for at every redraw of the panels
+
+/** The depths of a boxes answer's boxes (a box without one is at the depth asked), shallowest first. */
+export function treeDepths(data) {
+    let depths = depthsOf.get(data);
+    if (!depths) {
+        const seen = new Set();
+        for (const b of data.boxes || []) seen.add(b.depth ?? data.depth);
+        depths = [...seen].sort((a, b) => a - b);
+        depthsOf.set(data, depths);
+    }
+    return depths;
+}
+
+/**
+ * Draws a boxes answer's boxes, a colour per depth, the deepest first so that
+ * the few large boxes of the top levels stay visible over the many small
+ * ones; fainter under a ray's path, which is about the boxes it visited.
+ */
+export function drawTree(ctx, v, data, { dpr, light, underRay }) {
+    const list = data.boxes || [];
+    const depths = treeDepths(data).slice().reverse();
+    const alpha = (list.length > 2000 ? 0.55 : list.length > 200 ? 0.75 : 0.95) * (underRay ? 0.4 : 1);
+    const width = list.length > WIDE_BOXES ? 1 : Math.max(1, dpr);
+    const layers = depths.map((d) => ({ colour: depthColour(d, light), alpha, width: d === 0 ? 2 * dpr : width }));
+    const layerOf = new Map(depths.map((d, i) => [d, i]));
+    strokeLayers(ctx, layers, boxPaths(v, list, layers.length, (b) => layerOf.get(b.depth ?? data.depth)));
+}
+
+/** A ray step's box as {min, max, leaf, tris} (steps carry it as {box: {min, max}}, API.md; a flat one is taken too). */
+const stepBoxes = (data) => (data.steps || []).map((s) => ({ ...s, ...(s.box || {}) }))
+    .filter((s) => Array.isArray(s.min) && Array.isArray(s.max));
+
+/** The part of RAY_PARTS that ray step s is: 'inner', 'leaf' or 'empty'. */
+const stepPart = (s) => (!s.leaf ? 'inner' : s.tris > 0 ? 'leaf' : 'empty');
+
+/** Which of RAY_PARTS a ray's path shows, in the key's order. */
+export function rayParts(data) {
+    const steps = new Set(stepBoxes(data).map(stepPart));
+    return [...['inner', 'leaf', 'empty'].filter((k) => steps.has(k)), ...(data.ray ? ['ray'] : []), data.hit ? 'hit' : 'miss'];
+}
+
+/**
+ * Draws ray `r` ({req, data} of POST /api/ray) over the frame: the boxes it
+ * visited, the ray from its origin to the hit (past the model for a miss),
+ * which the traced view sees end on, and a ring at the hit (for a miss, at
+ * the model's distance along the ray: the pixel, in the traced view).
+ */
+export function drawRay(ctx, v, r, bounds, dpr) {
+    const order = ['inner', 'empty', 'leaf', 'ray'];
+    const layers = order.map((k) => ({
+        colour: RAY_PARTS[k].colour, dash: RAY_PARTS[k].dash, casing: 2 * dpr, width: (k === 'inner' || k === 'ray' ? 1.5 : 2) * dpr,
+    }));
+    const paths = boxPaths(v, stepBoxes(r.data), layers.length, (s) => order.indexOf(stepPart(s)));
+    const { origin, dir } = r.data.ray || {};
+    const hit = r.data.hit;
+    let end = hit ? hit.point : null;
+    if (origin && dir) {
+        const { centre, diagonal } = boundsFrame(bounds);
+        const along = Math.hypot(...centre.map((c, i) => c - origin[i]));
+        end = end || add(origin, scale(dir, along));
+        const s = projectSegment(v.cam, origin, hit ? end : add(origin, scale(dir, along + diagonal)));
+        if (s) {
+            const line = (paths[order.indexOf('ray')] = new Path2D());
+            line.moveTo(s[0][0] * v.sx, s[0][1] * v.sy);
+            line.lineTo(s[1][0] * v.sx, s[1][1] * v.sy);
         }
     }
-    for (const { s, path } of paths.values()) {
-        ctx.strokeStyle = s.colour;
-        ctx.lineWidth = s.width;
-        ctx.stroke(path);
-    }
+    strokeLayers(ctx, layers, paths);
+    const p = end ? project(v.cam, end) : [r.req.x + 0.5, r.req.y + 0.5];
+    if (p) drawMarker(ctx, [p[0] * v.sx, p[1] * v.sy], dpr, RAY_PARTS[hit ? 'hit' : 'miss'].colour);
 }
 
-/** The image-space rectangle [x0, y0, x1, y1] of a box's corners (all in front of the eye), or null. */
-export function projectedRect(cam, box) {
-    let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
-    for (const c of boxCorners(box)) {
-        const p = project(cam, c);
-        if (!p) return null;
-        x0 = Math.min(x0, p[0]); y0 = Math.min(y0, p[1]);
-        x1 = Math.max(x1, p[0]); y1 = Math.max(y1, p[1]);
-    }
-    return [x0, y0, x1, y1];
+/** A cross-hair with a ring at canvas point p, its size in CSS pixels whatever the frame's resolution. */
+function drawMarker(ctx, p, dpr, colour) {
+    const [x, y] = p, r = 7 * dpr;
+    const path = new Path2D();
+    path.moveTo(x + r, y);
+    path.arc(x, y, r, 0, Math.PI * 2);
+    path.moveTo(x - 2 * r, y); path.lineTo(x - r, y);
+    path.moveTo(x + r, y); path.lineTo(x + 2 * r, y);
+    path.moveTo(x, y - 2 * r); path.lineTo(x, y - r);
+    path.moveTo(x, y + r); path.lineTo(x, y + 2 * r);
+    strokeLayers(ctx, [{ colour, width: 2 * dpr, casing: 2 * dpr }], [path]);
 }
 
-/** A cross-hair with a ring at image point p (frame pixels). */
-export function drawMarker(ctx, p, sx, sy, colour) {
-    const x = p[0] * sx, y = p[1] * sy, r = 7 * Math.max(1, sx * 0.6);
-    ctx.lineWidth = 2;
-    ctx.strokeStyle = 'rgba(0,0,0,.7)';
-    ctx.beginPath();
-    ctx.arc(x, y, r + 1, 0, Math.PI * 2);
-    ctx.stroke();
-    ctx.strokeStyle = colour;
-    ctx.beginPath();
-    ctx.arc(x, y, r, 0, Math.PI * 2);
-    ctx.moveTo(x - 2 * r, y); ctx.lineTo(x - r, y);
-    ctx.moveTo(x + r, y); ctx.lineTo(x + 2 * r, y);
-    ctx.moveTo(x, y - 2 * r); ctx.lineTo(x, y - r);
-    ctx.moveTo(x, y + r); ctx.lineTo(x, y + 2 * r);
-    ctx.stroke();
+const keyShown = new WeakMap(); // element -> the HTML it holds: rebuilt only for another key
+
+/**
+ * The key under the frames: the colours of the depths drawn (`depths`) and of
+ * the ray's parts drawn (`parts`, RAY_PARTS' names); hidden when neither is.
+ * Swatches take the colours the overlay strokes with; the labels are the
+ * page's own words (RAY_PARTS), no HTML to escape.
+ */
+export function renderKey(el, depths, parts, light) {
+    const item = (attr, cls, colour, text) =>
+        `<li class="key-item" ${attr}><span class="key-swatch ${cls}" style="border-color:${colour}" aria-hidden="true"></span>${text}</li>`;
+    let html = '';
+    if (depths.length) {
+        html += `<div class="key-row" id="key-depths"><span class="key-title" id="key-depths-title">Boxes by depth</span>` +
+            `<ul aria-labelledby="key-depths-title">${depths.map((d) => item(`data-depth="${d}"`, '', depthColour(d, light), d)).join('')}</ul></div>`;
+    }
+    if (parts.length) {
+        const shape = (k) => ['cased', RAY_PARTS[k].dash ? 'dashed' : '', k === 'ray' ? 'line' : k === 'hit' || k === 'miss' ? 'ring' : ''].join(' ');
+        html += `<div class="key-row" id="key-ray"><span class="key-title" id="key-ray-title">Ray's path</span>` +
+            `<ul aria-labelledby="key-ray-title">${parts.map((k) => item(`data-part="${k}"`, shape(k), RAY_PARTS[k].colour, RAY_PARTS[k].label)).join('')}</ul></div>`;
+    }
+    el.hidden = !html;
+    if (keyShown.get(el) === html) return;
+    keyShown.set(el, html);
+    el.innerHTML = html;
 }

@@ -221,7 +221,7 @@ export function renderRay(el, app) {
     });
     html += '</tbody></table></div>';
     if (steps.length > show.length) html += `<p class="muted small">First ${show.length} of ${steps.length} steps listed.</p>`;
-    html += '<p class="muted small">Drawn over the frame: inner boxes blue, leaves orange (pale when empty), the hit ringed.</p>';
+    html += '<p class="muted small">Drawn over the frame in the colours of the key under it.</p>';
     html += '<div class="buttons"><button type="button" id="ray-clear">Clear</button></div>';
     el.innerHTML = html;
     el.querySelector('#ray-clear').addEventListener('click', () => app.dismissRay());

@@ -16,8 +16,8 @@
 // with the same `stream` key (the pane's, one per strip).
 
 import * as api from './api.js';
-import { cameraFromRequest, requestCamera, project } from './camera.js';
-import { drawBoxes, drawMarker, depthColour, projectedRect } from './overlay.js';
+import { cameraFromRequest, requestCamera } from './camera.js';
+import { canvasView, drawTree, drawRay } from './overlay.js';
 import { treeLabel } from './panels.js';
 
 const QUICK_PIXELS = 80000;
@@ -568,53 +568,46 @@ export class Pane {
     }
 
     /**
+     * What the overlay draws: the frame shown, whose camera it draws with, and
+     * the pane's boxes and ray over it; nothing while the image holds strips
+     * of a frame of another size (a new resolution's), which the frame
+     * shown's camera does not fit.
+     */
+    overlayContent() {
+        const s = this.shown, b = this.app.state.boxes;
+        const frame = s && this.canvas.width === s.cam.width && this.canvas.height === s.cam.height ? s : null;
+        return {
+            frame,
+            boxes: frame && b.on && this.boxes && this.boxes.data ? this.boxes : null,
+            ray: frame && this.ray && this.ray.data ? this.ray : null,
+        };
+    }
+
+    /**
      * Redraws boxes and the inspected ray with the camera of the frame shown
-     * (from drawPanels: once per animation frame at most), unless they and
-     * the frame's camera and size are what the overlay shows already.
+     * (from drawPanels: once per animation frame at most), unless they, the
+     * frame's camera, the canvas's size and the colour scheme are what the
+     * overlay shows already. The canvas has a pixel per device pixel of its
+     * box on the page (inside the frame's border), so lines are sharp.
      */
     drawOverlay() {
         const o = this.overlay;
-        const rect = this.frame.getBoundingClientRect();
+        const rect = o.getBoundingClientRect();
         const dpr = window.devicePixelRatio || 1;
         const w = Math.max(1, Math.round(rect.width * dpr)), h = Math.max(1, Math.round(rect.height * dpr));
-        const b = this.app.state.boxes;
-        const boxes = b.on && this.boxes && this.boxes.data ? this.boxes : null;
-        const ray = this.ray && this.ray.data ? this.ray : null;
-        const shown = this.shown;
-        const camera = JSON.stringify([w, h, shown && [shown.cam.width, shown.cam.height, shown.req.camera]]);
+        const { frame, boxes, ray } = this.overlayContent();
+        const light = !this.app.dark.matches;
+        const camera = JSON.stringify([w, h, dpr, light, frame && [frame.cam.width, frame.cam.height, frame.req.camera]]);
         const drawn = this.overlayDrawn;
         if (drawn && drawn.camera === camera && drawn.boxes === boxes && drawn.ray === ray) return;
         this.overlayDrawn = { camera, boxes, ray };
         if (o.width !== w || o.height !== h) { o.width = w; o.height = h; }
         const ctx = o.getContext('2d');
         ctx.clearRect(0, 0, w, h);
-        const rects = [];
-        if (!shown) { o.dataset.rects = '[]'; return; }
-        const cam = shown.cam;
-        const sx = w / cam.width, sy = h / cam.height;
-        const lw = Math.max(1, dpr);
-        if (boxes) {
-            const list = boxes.data.boxes || [];
-            const alpha = list.length > 2000 ? 0.45 : list.length > 200 ? 0.7 : 0.95;
-            drawBoxes(ctx, cam, list, sx, sy, (box) => ({
-                colour: depthColour(box.depth ?? b.depth, alpha),
-                width: (box.depth === 0 ? 2 : 1.25) * lw,
-            }));
-            for (const box of list.slice(0, 50)) rects.push(projectedRect(cam, box));
-        }
-        if (ray) {
-            // steps carry their box as {box: {min, max}} (API.md); accept a flat {min, max} too
-            const steps = (ray.data.steps || []).map((s) => ({ ...s, ...(s.box || {}) }))
-                .filter((s) => Array.isArray(s.min) && Array.isArray(s.max));
-            drawBoxes(ctx, cam, steps, sx, sy, (s) => (s.leaf
-                ? { colour: s.tris > 0 ? 'rgba(255,150,40,.95)' : 'rgba(255,220,120,.6)', width: 2 * lw }
-                : { colour: 'rgba(120,200,255,.55)', width: 1 * lw }));
-            const hit = ray.data.hit;
-            const p = hit ? project(cam, hit.point) : null;
-            const mark = p || [ray.req.x + 0.5, ray.req.y + 0.5];
-            drawMarker(ctx, mark, sx, sy, hit ? '#ff4fd8' : '#ffffff');
-        }
-        o.dataset.rects = JSON.stringify(rects.filter(Boolean).map((r) => r.map((v) => Math.round(v * 100) / 100)));
+        if (!frame) return;
+        const v = canvasView(frame.cam, w, h);
+        if (boxes) drawTree(ctx, v, boxes.data, { dpr, light, underRay: !!ray });
+        if (ray) drawRay(ctx, v, ray, this.app.model().bounds, dpr);
     }
 
     /** Frame pixel under a client point, or null outside. */
