@@ -111,6 +111,10 @@ void arbor_bench_opts_init(arbor_bench_opts *o);
 /* The rows arbor_bench_mesh fills: one per chosen kind and builder, plus
  * Embree's, in that order (kinds in enum order, builders within each). */
 size_t arbor_bench_row_count(const arbor_bench_opts *o);
+/* Bytes the ray sets and the primary hits they are made from take, held
+ * for the whole of an arbor_bench_mesh call (besides its trees, built and
+ * freed one at a time, and Embree's). */
+uint64_t arbor_bench_sets_bytes(void);
 
 /* Measures the mesh; rows must hold arbor_bench_row_count(o) rows.
  * model_name is the name the rows carry (cut to ARBOR_BENCH_MODEL_MAX - 1

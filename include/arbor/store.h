@@ -67,7 +67,9 @@ typedef struct {
 } arbor_tree_info;
 
 typedef struct {
-    uint64_t models, trees, reserved, limit;  /* bytes */
+    uint64_t models, trees, limit;  /* bytes */
+    uint64_t reserved;              /* bytes reckoned for the builds in progress */
+    uint64_t held;                  /* bytes held by arbor_store_reserve */
     uint32_t nmodels, building;
 } arbor_store_usage;
 
@@ -188,5 +190,15 @@ void arbor_store_stop_builds(arbor_store *s);
 
 /* Bytes a mesh holds (its arrays). */
 uint64_t arbor_mesh_bytes(const arbor_mesh *m);
+
+/* Memory used outside the store but within its budget (a benchmark job's
+ * own trees): arbor_store_reserve holds `bytes` of max_memory, evicting
+ * idle trees to make room, or fails (ARBOR_ERR_NOSPACE naming `what`,
+ * ARBOR_ERR_NOMEM) without holding any; arbor_store_unreserve gives back
+ * what a reserve held. arbor_store_tree_estimate: the bytes a build of
+ * that tree over ntris triangles is reckoned to take at its peak. */
+bool arbor_store_reserve(arbor_store *s, uint64_t bytes, const char *what, arbor_err *e);
+void arbor_store_unreserve(arbor_store *s, uint64_t bytes);
+uint64_t arbor_store_tree_estimate(arbor_accel_kind kind, arbor_builder builder, uint32_t ntris);
 
 #endif

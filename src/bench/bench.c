@@ -60,6 +60,12 @@ size_t arbor_bench_row_count(const arbor_bench_opts *o)
            (o->embree ? 1 : 0);
 }
 
+uint64_t arbor_bench_sets_bytes(void)
+{
+    uint64_t n = (uint64_t)ARBOR_PROTOCOL_WIDTH * ARBOR_PROTOCOL_HEIGHT;
+    return ARBOR_SET_COUNT * n * sizeof(arbor_ray) + n * (sizeof(arbor_hit) + sizeof(bool));
+}
+
 bool arbor_bench_same_hits(const arbor_bench_row *a, const arbor_bench_row *b)
 {
     double ha = (double)a->primary_hits, hb = (double)b->primary_hits;

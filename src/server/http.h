@@ -219,7 +219,7 @@ bool http_ready_for_frames(http_req *r);
 bool server_ready_locked(const arbor_server *s);
 
 /* jobs.c */
-job_table *jobs_create(arbor_pool *pool);
+job_table *jobs_create(arbor_pool *pool, arbor_store *store);
 void jobs_cancel_all(job_table *t);
 void jobs_destroy(job_table *t);
 

@@ -59,6 +59,7 @@ struct job_table {
     pthread_t thread;
     bool started;
     arbor_pool *pool;
+    arbor_store *store;        /* whose memory budget a running job's trees count in */
 };
 
 static void job_free(job *j)
@@ -95,6 +96,23 @@ static job *next_queued(job_table *t)
     return pick;
 }
 
+/* The bytes a job holds at its peak: the ray sets, and the largest of its
+ * trees (each built, measured and freed before the next) with Embree's BVH
+ * beside it, reckoned as ours. */
+static uint64_t job_peak_bytes(const job *j)
+{
+    uint32_t ntris = arbor_model_mesh(j->model)->ntris;
+    uint64_t tree = 0;
+    for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
+        for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
+            if (j->opts.kinds[k] && j->opts.builders[b]) {
+                uint64_t need = arbor_store_tree_estimate((arbor_accel_kind)k, (arbor_builder)b, ntris);
+                tree = need > tree ? need : tree;
+            }
+    uint64_t embree = j->opts.embree ? arbor_store_tree_estimate(ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH, ntris) : 0;
+    return arbor_bench_sets_bytes() + tree + embree;
+}
+
 static void run_job(job_table *t, job *j)
 {
     row_ctx ctx = {t, j};
@@ -104,7 +122,13 @@ static void run_job(job_table *t, job *j)
     j->opts.cancel = &j->cancel;
     arbor_err err;
     arbor_err_clear(&err);
-    bool ok = arbor_bench_mesh(j->model_name, arbor_model_mesh(j->model), &j->opts, j->rows, &err);
+    /* the job's trees live outside the store but within --max-memory */
+    uint64_t peak = job_peak_bytes(j);
+    bool ok = arbor_store_reserve(t->store, peak, "the benchmark", &err);
+    if (ok) {
+        ok = arbor_bench_mesh(j->model_name, arbor_model_mesh(j->model), &j->opts, j->rows, &err);
+        arbor_store_unreserve(t->store, peak);
+    }
     pthread_mutex_lock(&t->lock);
     j->ended_ms = arbor_now_ms();
     j->state = ok ? JOB_DONE : err.status == ARBOR_ERR_CANCELLED ? JOB_CANCELLED : JOB_FAILED;
@@ -150,12 +174,13 @@ static uint64_t job_first_id(void)
     return 1 + (r & ((UINT64_C(1) << 52) - 1));
 }
 
-job_table *jobs_create(arbor_pool *pool)
+job_table *jobs_create(arbor_pool *pool, arbor_store *store)
 {
     job_table *t = calloc(1, sizeof *t);
     if (t == NULL)
         return NULL;
     t->pool = pool;
+    t->store = store;
     t->next_id = job_first_id();
     pthread_mutex_init(&t->lock, NULL);
     pthread_cond_init(&t->work, NULL);

@@ -702,7 +702,7 @@ arbor_server *arbor_server_start(const arbor_server_config *c, arbor_store *stor
     /* cJSON allocates through json_malloc, which notes failures (see http.h). */
     cJSON_Hooks hooks = {json_malloc, free};
     cJSON_InitHooks(&hooks);
-    s->jobs = jobs_create(pool);
+    s->jobs = jobs_create(pool, store);
     s->oom = MHD_create_response_from_buffer(sizeof OOM_BODY - 1, (void *)OOM_BODY, MHD_RESPMEM_PERSISTENT);
     if (s->oom != NULL)
         MHD_add_response_header(s->oom, MHD_HTTP_HEADER_CONTENT_TYPE, "application/json");

@@ -244,6 +244,7 @@ static cJSON *daemon_json(arbor_server *s)
     cJSON_AddNumberToObject(mem, "models", (double)u.models);
     cJSON_AddNumberToObject(mem, "trees", (double)u.trees);
     cJSON_AddNumberToObject(mem, "building", (double)u.reserved);
+    cJSON_AddNumberToObject(mem, "benchmarks", (double)u.held); /* the running bench job's reckoning */
     cJSON_AddNumberToObject(mem, "limit", (double)u.limit);
     cJSON_AddNumberToObject(mem, "rss", (double)rss_bytes());
     /* what one request may ask, so that a client (the viewer) splits its

@@ -82,6 +82,7 @@ struct arbor_store {
     uint32_t nmodels, cap;
     uint64_t tick;
     uint64_t reserved;           /* estimates of trees being built */
+    uint64_t held;               /* arbor_store_reserve's: work outside the store */
     uint32_t building;
     uint64_t next_version;
     /* updated without the lock, when memory is really allocated and freed */
@@ -102,7 +103,7 @@ const char *arbor_tree_state_name(arbor_tree_state s)
  * corners, 287-429 for sah, up to 1,631 for the simple builders, which
  * split triangles far more often. So that a build that cannot fit is
  * refused before it starts rather than after. */
-static uint64_t build_estimate(arbor_accel_kind kind, arbor_builder builder, uint32_t ntris)
+uint64_t arbor_store_tree_estimate(arbor_accel_kind kind, arbor_builder builder, uint32_t ntris)
 {
     uint64_t per_tri = kind == ARBOR_ACCEL_BVH ? 80 : builder == ARBOR_BUILD_SAH ? 450 : 1700;
     return per_tri * ntris + 4096;
@@ -278,7 +279,7 @@ static bool table_grow(arbor_store *s, arbor_err *e)
 
 static uint64_t used_bytes(arbor_store *s)
 {
-    return atomic_load(&s->model_bytes) + atomic_load(&s->tree_bytes) + s->reserved;
+    return atomic_load(&s->model_bytes) + atomic_load(&s->tree_bytes) + s->reserved + s->held;
 }
 
 
@@ -474,6 +475,28 @@ bool arbor_store_add_model(arbor_store *s, const char *name, const char *file, a
     return ok;
 }
 
+bool arbor_store_reserve(arbor_store *s, uint64_t bytes, const char *what, arbor_err *e)
+{
+    dropped d;
+    uint64_t pending = 0;
+    pthread_mutex_lock(&s->lock);
+    bool ok = dropped_init(s, &d, e) && make_room(s, bytes, NULL, &d, &pending, what, bytes, e);
+    if (ok)
+        s->held += bytes;
+    pthread_mutex_unlock(&s->lock);
+    if (d.trees != NULL)
+        dropped_release(&d);
+    return ok;
+}
+
+void arbor_store_unreserve(arbor_store *s, uint64_t bytes)
+{
+    pthread_mutex_lock(&s->lock);
+    assert(s->held >= bytes);
+    s->held -= bytes;
+    pthread_mutex_unlock(&s->lock);
+}
+
 /* Detaches model `name`, if it is `only` when that is not NULL. */
 static bool remove_model(arbor_store *s, const char *name, const arbor_model *only, arbor_err *e)
 {
@@ -561,6 +584,7 @@ void arbor_store_usage_of(arbor_store *s, arbor_store_usage *u)
     u->models = atomic_load(&s->model_bytes);
     u->trees = atomic_load(&s->tree_bytes);
     u->reserved = s->reserved;
+    u->held = s->held;
     u->limit = s->config.max_memory;
     u->nmodels = s->nmodels;
     u->building = s->building;
@@ -744,7 +768,7 @@ static bool could_fit(arbor_store *s, uint64_t need)
 static bool build_start(arbor_store *s, arbor_model *m, arbor_accel_kind kind, arbor_builder builder,
                         arbor_err *e)
 {
-    uint64_t need = build_estimate(kind, builder, m->mesh.ntris);
+    uint64_t need = arbor_store_tree_estimate(kind, builder, m->mesh.ntris);
     bool ok = could_fit(s, need);
     if (!ok)
         fail_nospace(s, need, "building the tree", e);

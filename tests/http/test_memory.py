@@ -3,7 +3,9 @@ import gzip
 import os
 import re
 
-from harness import Daemon, check, eq, expect_error, expect_json, expect_ok, our, test
+import time
+
+from harness import Daemon, check, eq, expect_error, expect_json, expect_ok, fail, our, test
 
 _probe = {}
 BYTES = re.compile(r"\d{4,}|\d+(\.\d+)?\s*(bytes|B|KiB|MiB|GiB|KB|MB|GB)\b")
@@ -219,6 +221,31 @@ def test_memory_tree_in_use_is_not_evicted():
         r = out.get("r")
         check(not isinstance(r, Exception) and r is not None and r.status == 200, "the frame with A: %r" %
               (r.short() if hasattr(r, "short") else r))
+        d.stop_clean()
+    finally:
+        d.cleanup()
+
+
+@test
+def test_memory_bench_job_counts_in_the_budget():
+    """A bench job's ray sets and trees live outside the store, but within --max-memory: a job that cannot fit
+    fails saying how many bytes it needed (it ran regardless, past the budget), and holds nothing after."""
+    p = probe()
+    budget = p["models"] + 16 * 1024 * 1024  # the sets alone are some 90 MB
+    d = Daemon([our("menger.obj"), our("cornell.obj")],
+               ["--threads", "2", "--prebuild", "none", "--max-memory", str(budget)], name="bench budget daemon")
+    try:
+        jid = expect_json(d.post("/api/bench", {"model": "cornell", "accel": ["bvh"], "builder": ["median"],
+                                                "runs": 1}), 202)["id"]
+        end = time.time() + 60
+        while (job := expect_json(d.get("/api/jobs/%s" % jid)))["state"] in ("queued", "running"):
+            if time.time() > end:
+                fail("job %s still %s" % (jid, job["state"]))
+            time.sleep(0.1)
+        eq(job["state"], "failed", "a bench job over the budget: %r" % job)
+        check("the benchmark needs" in job["error"] and BYTES.search(job["error"]), "its error: %r" % job["error"])
+        eq(expect_json(d.get("/api/stats"))["daemon"]["memory"]["benchmarks"], 0, "bytes held after the job")
+        expect_json(build(d, "bvh", "sah"))
         d.stop_clean()
     finally:
         d.cleanup()
