@@ -123,7 +123,9 @@ void arbor_build_opts_init(arbor_build_opts *o, arbor_accel_kind kind, arbor_bui
 
 const char *arbor_accel_kind_name(arbor_accel_kind kind);
 const char *arbor_builder_name(arbor_builder builder);
-/* Parse a name; false for an unknown one. */
+/* Parse a name; false for an unknown one. The names, for messages: */
+#define ARBOR_ACCEL_KIND_NAMES "bvh, kd"
+#define ARBOR_BUILDER_NAMES "spatial, median, mean, sah"
 bool arbor_accel_kind_parse(const char *name, arbor_accel_kind *kind);
 bool arbor_builder_parse(const char *name, arbor_builder *builder);
 

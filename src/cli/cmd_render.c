@@ -122,7 +122,7 @@ static int parse_args(int argc, char **argv, render_args *a)
                 fprintf(stderr, "arbord render: unknown accel '%s' (bvh, kd)\n", v);
         } else if (strcmp(opt, "--builder") == 0) {
             if (!(ok = arbor_builder_parse(v, &a->builder)))
-                fprintf(stderr, "arbord render: unknown builder '%s' (spatial, median, mean, sah)\n", v);
+                fprintf(stderr, "arbord render: unknown builder '%s' (" ARBOR_BUILDER_NAMES ")\n", v);
         } else if (strcmp(opt, "--mode") == 0) {
             if (!(ok = arbor_render_mode_parse(v, &a->mode)))
                 fprintf(stderr, "arbord render: unknown mode '%s' (shaded, normals, depth, ao, heat)\n", v);

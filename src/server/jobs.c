@@ -280,8 +280,8 @@ static cJSON *job_json(const job *j, double now)
 }
 
 /* Reads a list of names ("bvh", ...) into chosen[]; a missing list means all. */
-static bool read_names(http_req *r, const cJSON *list, const char *field, bool *chosen, int count,
-                       bool (*parse)(const char *, int *))
+static bool read_names(http_req *r, const cJSON *list, const char *field, const char *names, bool *chosen,
+                       int count, bool (*parse)(const char *, int *))
 {
     if (list == NULL) {
         for (int i = 0; i < count; i++)
@@ -295,8 +295,10 @@ static bool read_names(http_req *r, const cJSON *list, const char *field, bool *
     for (const cJSON *v = list->child; v != NULL; v = v->next) {
         int i;
         if (!cJSON_IsString(v) || !parse(v->valuestring, &i)) {
-            http_reply_error(r, 400, "bad_request", "%s: unknown name %s", field,
-                             cJSON_IsString(v) ? v->valuestring : "(not a string)");
+            if (cJSON_IsString(v))
+                http_reply_error(r, 400, "bad_request", "unknown %s '%s' (%s)", field, v->valuestring, names);
+            else
+                http_reply_error(r, 400, "bad_request", "%s must be an array of names (%s)", field, names);
             return false;
         }
         chosen[i] = true;
@@ -331,10 +333,10 @@ static bool read_bench(http_req *r, const cJSON *body, job *j)
     arbor_bench_opts_init(&j->opts);
     memset(j->opts.kinds, 0, sizeof j->opts.kinds);
     memset(j->opts.builders, 0, sizeof j->opts.builders);
-    if (!read_names(r, cJSON_GetObjectItemCaseSensitive(body, "accel"), "accel", j->opts.kinds,
-                    ARBOR_ACCEL_KIND_COUNT, arbor_bench_kind_index) ||
-        !read_names(r, cJSON_GetObjectItemCaseSensitive(body, "builder"), "builder", j->opts.builders,
-                    ARBOR_BUILDER_COUNT, arbor_bench_builder_index))
+    if (!read_names(r, cJSON_GetObjectItemCaseSensitive(body, "accel"), "accel", ARBOR_ACCEL_KIND_NAMES,
+                    j->opts.kinds, ARBOR_ACCEL_KIND_COUNT, arbor_bench_kind_index) ||
+        !read_names(r, cJSON_GetObjectItemCaseSensitive(body, "builder"), "builder", ARBOR_BUILDER_NAMES,
+                    j->opts.builders, ARBOR_BUILDER_COUNT, arbor_bench_builder_index))
         return false;
     j->opts.runs = 1;
     if (runs != NULL) {

@@ -236,9 +236,9 @@ static bool read_named(const cJSON *v, render_spec *s, arbor_err *e)
         if (!read_string(v, n, word, sizeof word, e))
             return false;
         if (strcmp(n, "accel") == 0 && !arbor_accel_kind_parse(word, &s->kind))
-            return arbor_fail(e, ARBOR_ERR_INVALID, "unknown accel '%s' (bvh, kd)", word);
+            return arbor_fail(e, ARBOR_ERR_INVALID, "unknown accel '%s' (" ARBOR_ACCEL_KIND_NAMES ")", word);
         if (strcmp(n, "builder") == 0 && !arbor_builder_parse(word, &s->builder))
-            return arbor_fail(e, ARBOR_ERR_INVALID, "unknown builder '%s' (spatial, median, mean, sah)", word);
+            return arbor_fail(e, ARBOR_ERR_INVALID, "unknown builder '%s' (" ARBOR_BUILDER_NAMES ")", word);
         if (strcmp(n, "mode") == 0 && !arbor_render_mode_parse(word, &s->mode))
             return arbor_fail(e, ARBOR_ERR_INVALID, "unknown mode '%s' (shaded, normals, depth, ao, heat)", word);
         if (strcmp(n, "format") == 0) {
@@ -370,10 +370,10 @@ bool render_query_add(cJSON *obj, const char *key, const char *value, arbor_err 
         if (into == NULL)
             into = cJSON_AddObjectToObject(obj, "camera");
     } else if ((f = find_field(fields, COUNT(fields), key)) == NULL || f->type == F_CAMERA) {
-        return arbor_fail(e, ARBOR_ERR_INVALID, "unknown field '%s'", key);
+        return arbor_fail(e, ARBOR_ERR_INVALID, "unknown query parameter '%s'", key);
     }
     if (value == NULL)
-        return arbor_fail(e, ARBOR_ERR_INVALID, "%s needs a value", key);
+        return arbor_fail(e, ARBOR_ERR_INVALID, "%s needs a value (%s=...)", key, key);
     if (cJSON_GetObjectItemCaseSensitive(into, key) != NULL)
         return arbor_fail(e, ARBOR_ERR_INVALID, "%s is given twice", key);
     cJSON *v = query_value(f->type, key, value, e);

@@ -17,11 +17,11 @@
 bool parse_tree_names(http_req *r, const char *accel, const char *builder, arbor_accel_kind *k, arbor_builder *b)
 {
     if (!arbor_accel_kind_parse(accel, k)) {
-        http_reply_error(r, 400, "bad_request", "unknown accel '%s' (bvh, kd)", accel);
+        http_reply_error(r, 400, "bad_request", "unknown accel '%s' (" ARBOR_ACCEL_KIND_NAMES ")", accel);
         return false;
     }
     if (!arbor_builder_parse(builder, b)) {
-        http_reply_error(r, 400, "bad_request", "unknown builder '%s' (spatial, median, mean, sah)", builder);
+        http_reply_error(r, 400, "bad_request", "unknown builder '%s' (" ARBOR_BUILDER_NAMES ")", builder);
         return false;
     }
     return true;
