@@ -4,7 +4,7 @@
 #   make run        start the daemon on models/ and print the URL to open
 #   make loadtest   wrk against a daemon (not part of make test)
 #   make cluster    N daemons behind nginx on this machine (N=4 THREADS=1 PORT=8080)
-#   make test       every test; last line "N passed, M failed"
+#   make test       every test; last line "N passed, M failed, K skipped"
 #   make models     regenerate the procedural models in models/ (SIZE=large for big ones)
 #   make bench      the benchmark tables of docs/BENCH.md
 #   make bench-embree   the same with Intel Embree side by side (EMBREE_ISA=avx2: Embree's

@@ -215,8 +215,6 @@ static void reply_frame(render_req *rr, const arbor_frame_result *res)
     snprintf(timing, sizeof timing, "queue;dur=%.3f, build;dur=%.3f, render;dur=%.3f, encode;dur=%.3f", queue_ms,
              rr->tree_ms - rr->admitted_ms, res->render_ms, encode_ms);
     http_reply_header(r, "Server-Timing", timing);
-    http_reply_header(r, "Access-Control-Expose-Headers",
-                      "X-Render-Ms, X-Rays, X-Mrays-Per-S, X-Heat-Scale, Server-Timing, X-Request-Id");
 }
 
 static void frame_done(arbor_frame *f, void *user)
