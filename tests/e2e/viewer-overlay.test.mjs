@@ -5,11 +5,14 @@
 // either colour scheme; a ray's path in colours apart from every depth's,
 // the ray a line once the view turns; a sharp overlay with a ring of one size
 // at two device pixels per CSS pixel; no boxes stretched over the strips of a
-// new resolution; and a key that follows what is drawn.
+// new resolution; a key that follows what is drawn; and Save PNG with what
+// the overlay draws.
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { withViewer, screenshot, waitFullFrame, overlayBox } from './lib.mjs';
+import fs from 'node:fs';
+import path from 'node:path';
+import { withViewer, screenshot, waitFullFrame, overlayBox, shotDir } from './lib.mjs';
 
 const T = { timeout: 180000 };
 const afterPaint = (page) => page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
@@ -310,6 +313,62 @@ test('the key follows what is drawn: nothing without boxes or a ray, the depths 
         await page.uncheck('#boxes-on');
         await afterPaint(page);
         assert.equal(await page.isVisible('#overlay-key'), false, 'the key stays without boxes or a ray');
+        assert.deepEqual(errors, []);
+    });
+});
+
+/**
+ * Saves the frame (Save PNG) and compares the picture with the frame the
+ * daemon sent: its size, how many pixels differ, and how many of those are
+ * near each of `colours` ({colour: [r, g, b]}).
+ */
+async function savedOverlay(page, colours, name) {
+    await page.waitForSelector('#save-png:not([disabled])');
+    const [download] = await Promise.all([page.waitForEvent('download'), page.click('#save-png')]);
+    const file = fs.readFileSync(await download.path());
+    fs.mkdirSync(shotDir, { recursive: true });
+    fs.writeFileSync(path.join(shotDir, `${name}.png`), file);
+    return page.evaluate(async ({ b64, colours }) => {
+        const decode = async (blob) => {
+            const bmp = await createImageBitmap(blob);
+            const c = new OffscreenCanvas(bmp.width, bmp.height);
+            c.getContext('2d').drawImage(bmp, 0, 0);
+            return c.getContext('2d').getImageData(0, 0, bmp.width, bmp.height);
+        };
+        const saved = await decode(new Blob([Uint8Array.from(atob(b64), (ch) => ch.charCodeAt(0))], { type: 'image/png' }));
+        const frame = await decode(window.arbor.panes[0].lastFull.blob);
+        const near = colours.map(() => 0);
+        let differ = 0;
+        for (let i = 0; i < frame.data.length; i += 4) {
+            const s = saved.data.slice(i, i + 3), f = frame.data.slice(i, i + 3);
+            if (Math.abs(s[0] - f[0]) + Math.abs(s[1] - f[1]) + Math.abs(s[2] - f[2]) <= 6) continue;
+            differ++;
+            const k = colours.findIndex((c) => c.colour.every((v, j) => Math.abs(v - s[j]) <= 40));
+            if (k >= 0) near[k]++;
+        }
+        return { size: [saved.width, saved.height], differ, near };
+    }, { b64: file.toString('base64'), colours });
+}
+
+test('Save PNG saves the boxes and the inspected ray drawn over the frame, in the colours of the key', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=sphere&accel=kd&builder=sah&spp=1&depth=3&boxes=all`);
+        await boxesShown(page, 3);
+        const depths = await keyEntries(page, 'key-depths');
+        const boxes = await savedOverlay(page, depths, 'saved-boxes');
+        assert.deepEqual(boxes.size, [640, 480]);
+        assert.ok(boxes.differ > 2000, `${boxes.differ} pixels drawn over the saved frame`);
+        depths.forEach((c, i) => assert.ok(boxes.near[i] > 20, `depth ${c.depth}'s colour rgb(${c.colour}) is not in the saved picture: ${JSON.stringify(boxes)}`));
+        // with a ray inspected, its path is drawn over the (fainter) boxes
+        await inspectMiddle(page);
+        const parts = (await keyEntries(page, 'key-ray')).filter((c) => c.part === 'inner' || c.part === 'leaf');
+        const ray = await savedOverlay(page, parts, 'saved-ray');
+        parts.forEach((c, i) => assert.ok(ray.near[i] > 20, `the ray's ${c.part} colour rgb(${c.colour}) is not in the saved picture: ${JSON.stringify(ray)}`));
+        // without boxes or a ray, the saved picture is the daemon's frame
+        await page.keyboard.press('Escape');
+        await page.uncheck('#boxes-on');
+        await afterPaint(page);
+        assert.equal((await savedOverlay(page, [], 'saved-plain')).differ, 0);
         assert.deepEqual(errors, []);
     });
 });

@@ -147,7 +147,7 @@ export function treeDepths(data) {
  * the few large boxes of the top levels stay visible over the many small
  * ones; fainter under a ray's path, which is about the boxes it visited.
  */
-export function drawTree(ctx, v, data, { dpr, light, underRay }) {
+function drawTree(ctx, v, data, { dpr, light, underRay }) {
     const list = data.boxes || [];
     const depths = treeDepths(data).slice().reverse();
     const alpha = (list.length > 2000 ? 0.55 : list.length > 200 ? 0.75 : 0.95) * (underRay ? 0.4 : 1);
@@ -155,6 +155,15 @@ export function drawTree(ctx, v, data, { dpr, light, underRay }) {
     const layers = depths.map((d) => ({ colour: depthColour(d, light), alpha, width: d === 0 ? 2 * dpr : width }));
     const layerOf = new Map(depths.map((d, i) => [d, i]));
     strokeLayers(ctx, layers, boxPaths(v, list, layers.length, (b) => layerOf.get(b.depth ?? data.depth)));
+}
+
+/**
+ * Draws a pane's overlay content ({boxes, ray}: Pane.overlayContent) through
+ * view v: on the page's overlay canvas, and over a saved frame (save.js).
+ */
+export function drawContent(ctx, v, { boxes, ray }, { dpr, light, bounds }) {
+    if (boxes) drawTree(ctx, v, boxes.data, { dpr, light, underRay: !!ray });
+    if (ray) drawRay(ctx, v, ray, bounds, dpr);
 }
 
 /** A ray step's box as {min, max, leaf, tris} (steps carry it as {box: {min, max}}, API.md; a flat one is taken too). */
@@ -176,7 +185,7 @@ export function rayParts(data) {
  * which the traced view sees end on, and a ring at the hit (for a miss, at
  * the model's distance along the ray: the pixel, in the traced view).
  */
-export function drawRay(ctx, v, r, bounds, dpr) {
+function drawRay(ctx, v, r, bounds, dpr) {
     const order = ['inner', 'empty', 'leaf', 'ray'];
     const layers = order.map((k) => ({
         colour: RAY_PARTS[k].colour, dash: RAY_PARTS[k].dash, casing: 2 * dpr, width: (k === 'inner' || k === 'ray' ? 1.5 : 2) * dpr,

@@ -17,7 +17,7 @@
 
 import * as api from './api.js';
 import { cameraFromRequest, requestCamera } from './camera.js';
-import { canvasView, drawTree, drawRay } from './overlay.js';
+import { canvasView, drawContent } from './overlay.js';
 import { treeLabel } from './panels.js';
 
 const QUICK_PIXELS = 80000;
@@ -605,9 +605,7 @@ export class Pane {
         const ctx = o.getContext('2d');
         ctx.clearRect(0, 0, w, h);
         if (!frame) return;
-        const v = canvasView(frame.cam, w, h);
-        if (boxes) drawTree(ctx, v, boxes.data, { dpr, light, underRay: !!ray });
-        if (ray) drawRay(ctx, v, ray, this.app.model().bounds, dpr);
+        drawContent(ctx, canvasView(frame.cam, w, h), { boxes, ray }, { dpr, light, bounds: this.app.model().bounds });
     }
 
     /** Frame pixel under a client point, or null outside. */
