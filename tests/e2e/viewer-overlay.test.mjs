@@ -372,3 +372,33 @@ test('Save PNG saves the boxes and the inspected ray drawn over the frame, in th
         assert.deepEqual(errors, []);
     });
 });
+
+test('Save PNG waits while the frame on screen is not the full frame it would save (a reset before the orbit\'s frames came)', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=sphere&accel=kd&builder=sah&spp=1&depth=3&boxes=all`);
+        await boxesShown(page, 3);
+        await page.waitForSelector('#save-png:not([disabled])');
+        // orbit by drag until quick frames of the moved view are shown
+        const box = await page.locator('#frame-0').boundingBox();
+        const cx = box.x + box.width / 2, cy = box.y + box.height / 2;
+        await page.mouse.move(cx, cy);
+        await page.mouse.down();
+        for (let i = 1; i <= 10; i++) await page.mouse.move(cx + 12 * i, cy, { steps: 2 });
+        await page.mouse.up();
+        await page.waitForFunction(() => window.arbor.panes[0].shown.quick, null, { timeout: 30000 });
+        // the reset view's frames are held back: the moved view's quick frame stays on screen
+        const held = [];
+        await page.route('**/api/render*', (route) => held.push(route));
+        await page.click('#reset');
+        await page.waitForFunction(() => !window.arbor.moving, null, { timeout: 30000 });
+        await afterPaint(page);
+        const st = await page.evaluate(() => ({ quick: window.arbor.panes[0].shown.quick, full: window.arbor.panes[0].lastFull.key }));
+        assert.equal(st.quick, true, 'the moved view\'s quick frame is on screen');
+        assert.equal(await page.$eval('#save-png', (b) => b.disabled), true,
+            'Save PNG offers the reset view\'s full frame while another view is on screen');
+        await page.unroute('**/api/render*');
+        for (const r of held) await r.continue().catch(() => {});
+        await page.waitForSelector('#save-png:not([disabled])', { timeout: 60000 });
+        assert.deepEqual(errors, []);
+    });
+});

@@ -222,10 +222,15 @@ export class Pane {
             `${s.req.width}×${s.req.height} · ${s.req.spp} spp${s.quick ? ' (quick)' : ''}`;
     }
 
-    /** Whether the pane shows the whole full frame of the current view (what Save PNG may save). */
+    /**
+     * Whether the pane shows the whole full frame of the current view (what
+     * Save PNG may save): the last full frame is of this view and on screen,
+     * not a quick frame of another (a reset before the orbit's frames came).
+     */
     complete() {
         const f = this.lastFull;
-        return !!(f && f.blob && this.app.model() && !this.building && f.key === this.frameKey(this.request(false)));
+        return !!(f && f.blob && this.app.model() && !this.building && f.key === this.frameKey(this.request(false)) &&
+            this.shown && this.shown.key === f.key);
     }
 
     /**
