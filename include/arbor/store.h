@@ -195,10 +195,11 @@ uint64_t arbor_mesh_bytes(const arbor_mesh *m);
  * own trees): arbor_store_reserve holds `bytes` of max_memory, evicting
  * idle trees to make room, or fails (ARBOR_ERR_NOSPACE naming `what`,
  * ARBOR_ERR_NOMEM) without holding any; arbor_store_unreserve gives back
- * what a reserve held. arbor_store_tree_estimate: the bytes a build of
- * that tree over ntris triangles is reckoned to take at its peak. */
+ * what a reserve held. arbor_store_tree_estimate: the bytes a tree over
+ * ntris triangles is reckoned to take, a BVH's binary tree too when
+ * with_binary (the store drops it; a benchmark keeps it). */
 bool arbor_store_reserve(arbor_store *s, uint64_t bytes, const char *what, arbor_err *e);
 void arbor_store_unreserve(arbor_store *s, uint64_t bytes);
-uint64_t arbor_store_tree_estimate(arbor_accel_kind kind, arbor_builder builder, uint32_t ntris);
+uint64_t arbor_store_tree_estimate(arbor_accel_kind kind, arbor_builder builder, uint32_t ntris, bool with_binary);
 
 #endif

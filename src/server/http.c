@@ -180,7 +180,7 @@ void http_queue(http_req *r, void (*run)(void *ctx, uint32_t task), void (*relea
     }
     if (!arbor_pool_submit(r->srv->pool, job, &e)) {
         arbor_job_release(job); /* releases ctx: before r is resumed, which may let the server go */
-        http_reply_error(r, 503, "busy", "the daemon is shutting down");
+        http_reply_stopping(r);
         http_resume(r);
         return;
     }
@@ -373,6 +373,11 @@ cJSON *http_body_json(http_req *r)
 bool server_ready_locked(const arbor_server *s)
 {
     return s->loaded && s->npending == 0 && !s->stopping;
+}
+
+void http_reply_stopping(http_req *r)
+{
+    http_reply_error(r, 503, "busy", "the daemon is shutting down");
 }
 
 bool http_ready_for_frames(http_req *r)

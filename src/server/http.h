@@ -216,6 +216,8 @@ void sync_forget(arbor_server *s); /* frees the records of failed and of renamed
  * so that a load balancer passes them to a node that is; false with the
  * answer made. server_ready_locked: ready, with s->lock held. */
 bool http_ready_for_frames(http_req *r);
+/* The 503 of a request the stopping daemon will not start (a new frame, job or route). */
+void http_reply_stopping(http_req *r);
 bool server_ready_locked(const arbor_server *s);
 
 /* jobs.c */

@@ -106,10 +106,10 @@ static uint64_t job_peak_bytes(const job *j)
     for (int k = 0; k < ARBOR_ACCEL_KIND_COUNT; k++)
         for (int b = 0; b < ARBOR_BUILDER_COUNT; b++)
             if (j->opts.kinds[k] && j->opts.builders[b]) {
-                uint64_t need = arbor_store_tree_estimate((arbor_accel_kind)k, (arbor_builder)b, ntris);
+                uint64_t need = arbor_store_tree_estimate((arbor_accel_kind)k, (arbor_builder)b, ntris, true);
                 tree = need > tree ? need : tree;
             }
-    uint64_t embree = j->opts.embree ? arbor_store_tree_estimate(ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH, ntris) : 0;
+    uint64_t embree = j->opts.embree ? arbor_store_tree_estimate(ARBOR_ACCEL_BVH, ARBOR_BUILD_SAH, ntris, false) : 0;
     return arbor_bench_sets_bytes() + tree + embree;
 }
 
@@ -395,11 +395,18 @@ void route_bench(http_req *r)
     uint32_t queued = 0;
     for (const job *q = t->jobs; q != NULL; q = q->next)
         queued += q->state == JOB_QUEUED;
-    if (queued >= JOBS_QUEUED_MAX) {
+    /* closing: jobs_cancel_all has run (a route that began before the stop
+     * ends after it), and a job queued now would run on into the shutdown */
+    bool closing = t->closing;
+    if (closing || queued >= JOBS_QUEUED_MAX) {
         pthread_mutex_unlock(&t->lock);
         job_free(j);
-        http_reply_error(r, 503, "busy", "%d bench jobs are queued: try again when one has run", JOBS_QUEUED_MAX);
-        http_reply_header(r, "Retry-After", "10");
+        if (closing) {
+            http_reply_stopping(r);
+        } else {
+            http_reply_error(r, 503, "busy", "%d bench jobs are queued: try again when one has run", JOBS_QUEUED_MAX);
+            http_reply_header(r, "Retry-After", "10");
+        }
         return;
     }
     j->id = t->next_id++;

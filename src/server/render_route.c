@@ -471,9 +471,13 @@ void route_render(http_req *r)
     http_suspend(r);
     if (!admit(s, rr)) {
         metrics_frame_rejected(&s->metrics);
-        http_reply_error(r, 503, "busy", "all %u frame slots (--threads + --queue) are taken; try again",
-                         (unsigned)(s->config.threads + s->config.queue));
-        http_reply_header(r, "Retry-After", "1");
+        if (atomic_load(&s->closing)) { /* the stop began after http_ready_for_frames */
+            http_reply_stopping(r);
+        } else {
+            http_reply_error(r, 503, "busy", "all %u frame slots (--threads + --queue) are taken; try again",
+                             (unsigned)(s->config.threads + s->config.queue));
+            http_reply_header(r, "Retry-After", "1");
+        }
         rr->answered = true;
         rr_finish(rr);
         rr_release(rr);

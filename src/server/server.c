@@ -415,13 +415,16 @@ static bool on_headers(http_req *r, const char *method)
     /* Refuse an unauthorised upload before its body, not after storing it. */
     if (r->upload && !http_may_write(r))
         return false;
-    /* An upload's gzip is known by its magic bytes; any other coding would be parsed as the model. */
-    const char *coding = r->upload ? MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND,
-                                                                 MHD_HTTP_HEADER_CONTENT_ENCODING)
-                                   : NULL;
-    if (coding != NULL && strcasecmp(coding, "gzip") != 0 && strcasecmp(coding, "x-gzip") != 0 &&
-        strcasecmp(coding, "identity") != 0) {
-        http_reply_error(r, 415, "unsupported_media_type", "Content-Encoding '%s' is not read (gzip is)", coding);
+    /* Bodies are read as they come: only a PUT of a model may be gzip (known
+     * by its magic bytes); any other coding would be parsed as the body. */
+    bool body = http_method_is(r, "POST") || http_method_is(r, "PUT");
+    bool put_model = r->upload && http_method_is(r, "PUT");
+    const char *coding =
+        body ? MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_ENCODING) : NULL;
+    if (coding != NULL && strcasecmp(coding, "identity") != 0 &&
+        !(put_model && (strcasecmp(coding, "gzip") == 0 || strcasecmp(coding, "x-gzip") == 0))) {
+        http_reply_error(r, 415, "unsupported_media_type", "Content-Encoding '%s' is not read here%s", coding,
+                         put_model ? " (gzip is)" : " (only a PUT of a model may be gzip)");
         return false;
     }
     const char *length = MHD_lookup_connection_value(r->conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
@@ -477,7 +480,7 @@ static void dispatch_unless_stopping(http_req *r, const char *url)
         s->inflight++;
     pthread_mutex_unlock(&s->lock);
     if (refuse) {
-        http_reply_error(r, 503, "busy", "the daemon is shutting down");
+        http_reply_stopping(r);
         return;
     }
     dispatch(r, url);

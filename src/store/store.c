@@ -83,6 +83,7 @@ struct arbor_store {
     uint64_t tick;
     uint64_t reserved;           /* estimates of trees being built */
     uint64_t held;               /* arbor_store_reserve's: work outside the store */
+    char held_for[64];           /* what the last reserve was for, for messages */
     uint32_t building;
     uint64_t next_version;
     /* updated without the lock, when memory is really allocated and freed */
@@ -98,14 +99,15 @@ const char *arbor_tree_state_name(arbor_tree_state s)
 
 /* Bytes per triangle a built tree takes, about the largest of the trees of
  * ../shared/models (arbord stats --accel all --builder all): the bvh's
- * wide tree alone (the store drops the binary one), 47-78; the kd tree's
- * nodes, leaf lists and leaf packs, which copy every listed triangle's
- * corners, 287-429 for sah, up to 1,631 for the simple builders, which
- * split triangles far more often. So that a build that cannot fit is
+ * wide tree alone (the store drops the binary one), 60-81, and its binary
+ * tree 17-26 more where it is kept (bunny, castle, galleon); the kd
+ * tree's nodes, leaf lists and leaf packs, which copy every listed
+ * triangle's corners, 287-429 for sah, up to 1,631 for the simple builders,
+ * which split triangles far more often. So that a build that cannot fit is
  * refused before it starts rather than after. */
-uint64_t arbor_store_tree_estimate(arbor_accel_kind kind, arbor_builder builder, uint32_t ntris)
+uint64_t arbor_store_tree_estimate(arbor_accel_kind kind, arbor_builder builder, uint32_t ntris, bool with_binary)
 {
-    uint64_t per_tri = kind == ARBOR_ACCEL_BVH ? 80 : builder == ARBOR_BUILD_SAH ? 450 : 1700;
+    uint64_t per_tri = kind == ARBOR_ACCEL_BVH ? (with_binary ? 110 : 84) : builder == ARBOR_BUILD_SAH ? 450 : 1700;
     return per_tri * ntris + 4096;
 }
 
@@ -341,14 +343,24 @@ static int by_last_used(const void *a, const void *b)
     return (x->last_used > y->last_used) - (x->last_used < y->last_used);
 }
 
+/* Says why `need` bytes cannot fit: more than the whole budget (freeing
+ * would never help), or what is in use that cannot be freed. Lock held. */
 static void fail_nospace(arbor_store *s, uint64_t need, const char *what, arbor_err *e)
 {
     uint64_t used = used_bytes(s), limit = s->config.max_memory;
+    if (need > limit) {
+        arbor_fail(e, ARBOR_ERR_NOSPACE, "%s needs %llu bytes, more than the whole memory budget of %llu bytes", what,
+                   (unsigned long long)need, (unsigned long long)limit);
+        return;
+    }
+    char held[128] = "";
+    if (s->held > 0)
+        snprintf(held, sizeof held, "; %llu of them held for %s", (unsigned long long)s->held, s->held_for);
     arbor_fail(e, ARBOR_ERR_NOSPACE,
                "%s needs %llu bytes; %llu of the %llu-byte memory budget are in use and cannot be freed "
-               "(trees being rendered are never evicted)",
+               "(trees being rendered are never evicted%s)",
                what, (unsigned long long)need, (unsigned long long)(used < limit ? used : limit),
-               (unsigned long long)limit);
+               (unsigned long long)limit, held);
 }
 
 /* Makes room for `need` more bytes by evicting ready trees that only the
@@ -481,8 +493,10 @@ bool arbor_store_reserve(arbor_store *s, uint64_t bytes, const char *what, arbor
     uint64_t pending = 0;
     pthread_mutex_lock(&s->lock);
     bool ok = dropped_init(s, &d, e) && make_room(s, bytes, NULL, &d, &pending, what, bytes, e);
-    if (ok)
+    if (ok) {
         s->held += bytes;
+        snprintf(s->held_for, sizeof s->held_for, "%s", what);
+    }
     pthread_mutex_unlock(&s->lock);
     if (d.trees != NULL)
         dropped_release(&d);
@@ -768,7 +782,7 @@ static bool could_fit(arbor_store *s, uint64_t need)
 static bool build_start(arbor_store *s, arbor_model *m, arbor_accel_kind kind, arbor_builder builder,
                         arbor_err *e)
 {
-    uint64_t need = arbor_store_tree_estimate(kind, builder, m->mesh.ntris);
+    uint64_t need = arbor_store_tree_estimate(kind, builder, m->mesh.ntris, false);
     bool ok = could_fit(s, need);
     if (!ok)
         fail_nospace(s, need, "building the tree", e);

@@ -1,4 +1,5 @@
 """Every failure of the issue: status and {"error":{"code","message"}}; one test per case."""
+import gzip
 import json
 import os
 import re
@@ -331,14 +332,22 @@ def test_error_put_of_a_multipart_body():
 
 @test
 def test_error_upload_in_a_coding_not_read():
-    """A body in a Content-Encoding the daemon does not decode (br, deflate) is a 415 naming it (RFC 9110
-    15.5.16), not bytes parsed as a model: these happen to be plain OBJ, and were saved as one."""
+    """A body in a Content-Encoding the daemon does not decode (br, deflate; gzip but for a PUT of a model) is a
+    415 naming it (RFC 9110 15.5.16), not bytes parsed as a model: these happen to be plain OBJ, and were saved
+    as one."""
     d = limits_daemon()
     for coding in ("br", "deflate"):
         r = d.req("PUT", "/api/models/coded", body=b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
                   headers={"Content-Encoding": coding})
         expect_error(r, 415, "unsupported_media_type", coding)
         expect_error(d.req("GET", "/api/models/coded"), 404, "not_found")
+    # a multipart POST and a JSON body are never decoded: gzip there is a 415 too, not a confusing 400
+    body, ctype = multipart([("model", "gz.obj", "model/obj", gzip.compress(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"))])
+    r = d.req("POST", "/api/models/coded", body=body, headers={"Content-Type": ctype, "Content-Encoding": "gzip"})
+    expect_error(r, 415, "unsupported_media_type", "gzip")
+    r = d.req("POST", "/api/render", body=gzip.compress(b'{"model":"cornell","width":16,"height":12}'),
+              headers={"Content-Type": "application/json", "Content-Encoding": "gzip"})
+    expect_error(r, 415, "unsupported_media_type", "gzip")
 
 
 @test

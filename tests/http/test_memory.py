@@ -226,26 +226,49 @@ def test_memory_tree_in_use_is_not_evicted():
         d.cleanup()
 
 
+def _bench_job(d, timeout=120):
+    """Runs a one-tree bench job of cornell to its end; its final answer."""
+    jid = expect_json(d.post("/api/bench", {"model": "cornell", "accel": ["bvh"], "builder": ["median"],
+                                            "runs": 1}), 202)["id"]
+    end = time.time() + timeout
+    while (job := expect_json(d.get("/api/jobs/%s" % jid)))["state"] in ("queued", "running"):
+        if time.time() > end:
+            fail("job %s still %s" % (jid, job["state"]))
+        time.sleep(0.1)
+    return job
+
+
 @test
 def test_memory_bench_job_counts_in_the_budget():
-    """A bench job's ray sets and trees live outside the store, but within --max-memory: a job that cannot fit
-    fails saying how many bytes it needed (it ran regardless, past the budget), and holds nothing after."""
+    """A bench job's ray sets and trees live outside the store, but within --max-memory: a job larger than the
+    whole budget fails saying so (it ran regardless, past the budget); one that fits once an idle tree is
+    evicted evicts it and runs; a job holds nothing after it ends."""
     p = probe()
     budget = p["models"] + 16 * 1024 * 1024  # the sets alone are some 90 MB
     d = Daemon([our("menger.obj"), our("cornell.obj")],
                ["--threads", "2", "--prebuild", "none", "--max-memory", str(budget)], name="bench budget daemon")
     try:
-        jid = expect_json(d.post("/api/bench", {"model": "cornell", "accel": ["bvh"], "builder": ["median"],
-                                                "runs": 1}), 202)["id"]
-        end = time.time() + 60
-        while (job := expect_json(d.get("/api/jobs/%s" % jid)))["state"] in ("queued", "running"):
-            if time.time() > end:
-                fail("job %s still %s" % (jid, job["state"]))
-            time.sleep(0.1)
+        job = _bench_job(d)
         eq(job["state"], "failed", "a bench job over the budget: %r" % job)
-        check("the benchmark needs" in job["error"] and BYTES.search(job["error"]), "its error: %r" % job["error"])
+        check("more than the whole memory budget" in job["error"], "its error: %r" % job["error"])
+        need = int(re.search(r"needs (\d+) bytes", job["error"]).group(1))
         eq(expect_json(d.get("/api/stats"))["daemon"]["memory"]["benchmarks"], 0, "bytes held after the job")
         expect_json(build(d, "bvh", "sah"))
+        d.stop_clean()
+    finally:
+        d.cleanup()
+    # room for the job only once menger's idle bvh:sah tree goes
+    tree = p[("bvh", "sah")]
+    d = Daemon([our("menger.obj"), our("cornell.obj")],
+               ["--threads", "2", "--prebuild", "none", "--max-memory", str(p["models"] + need + tree // 2)],
+               name="bench eviction daemon")
+    try:
+        expect_json(build(d, "bvh", "sah"))
+        eq(states(d)[("bvh", "sah")], "ready", "menger's bvh:sah before the job")
+        job = _bench_job(d)
+        eq(job["state"], "done", "a bench job that fits once a tree is evicted: %r" % job)
+        eq(states(d)[("bvh", "sah")], "absent", "menger's bvh:sah, evicted for the job")
+        eq(expect_json(d.get("/api/stats"))["daemon"]["memory"]["benchmarks"], 0, "bytes held after the job")
         d.stop_clean()
     finally:
         d.cleanup()
