@@ -41,6 +41,7 @@ export function canvasView(cam, w, h) {
     return { cam, w, h, sx: w / cam.width, sy: h / cam.height, kx: (0.5 * w) / (cam.tanHalfFov * aspect), ky: (0.5 * h) / cam.tanHalfFov };
 }
 
+const CULL_MARGIN = 8; // canvas pixels
 // a box's corners in camera space (x, y, z) and on the canvas (x, y): reused for every box
 const Q = new Float64Array(24), P = new Float64Array(16);
 
@@ -51,7 +52,7 @@ const Q = new Float64Array(24), P = new Float64Array(16);
  */
 function addBox(path, v, b) {
     const { eye, right: r, up: u, forward: f } = v.cam, lo = b.min, hi = b.max;
-    let zmin = Infinity, zabs = 0;
+    let zmin = Infinity, zmax = -Infinity, zabs = 0;
     for (let i = 0; i < 8; i++) {
         const x = (i & 1 ? hi[0] : lo[0]) - eye[0], y = (i & 2 ? hi[1] : lo[1]) - eye[1], z = (i & 4 ? hi[2] : lo[2]) - eye[2];
         const qz = x * f[0] + y * f[1] + z * f[2];
@@ -59,8 +60,10 @@ function addBox(path, v, b) {
         Q[3 * i + 1] = x * u[0] + y * u[1] + z * u[2];
         Q[3 * i + 2] = qz;
         zmin = Math.min(zmin, qz);
+        zmax = Math.max(zmax, qz);
         zabs = Math.max(zabs, Math.abs(qz));
     }
+    if (zmax <= 0) return; // wholly behind the eye: every edge would be clipped away
     // projectSegment's near plane for any edge of the box: at or past it, no edge is clipped
     if (zmin < NEAR * (1 + 2 * zabs)) {
         const k = boxCorners(b);
@@ -81,7 +84,8 @@ function addBox(path, v, b) {
         x0 = Math.min(x0, x); x1 = Math.max(x1, x);
         y0 = Math.min(y0, y); y1 = Math.max(y1, y);
     }
-    if (x1 < -2 || y1 < -2 || x0 > v.w + 2 || y0 > v.h + 2) return;
+    // off the canvas by more than the widest stroke's half (a cased ray line at 2 device pixels per CSS pixel)
+    if (x1 < -CULL_MARGIN || y1 < -CULL_MARGIN || x0 > v.w + CULL_MARGIN || y0 > v.h + CULL_MARGIN) return;
     // the twelve edges as the two faces of constant z, closed, and the four edges between them: fewer path calls
     for (const z of [0, 8]) {
         path.moveTo(P[z], P[z + 1]);
