@@ -472,8 +472,8 @@ static void test_bad_queries_are_refused(void)
     query_refused("model=m&width=640&width=320", false, "width|twice");
     query_refused("model=m&yaw=1&yaw=2", false, "yaw|twice");
     query_refused("model=m&region=0,0,8,8&region=0,0,4,4", false, "region|twice");
-    query_refused("model=m&colour=red", false, "unknown field 'colour'");
-    query_refused("model=m&camera=1", false, "unknown field 'camera'");
+    query_refused("model=m&colour=red", false, "unknown query parameter 'colour'");
+    query_refused("model=m&camera=1", false, "unknown query parameter 'camera'");
     query_refused("model=m&width", false, "width|value");
     query_refused("model=m&width=", false, "width|number");
     query_refused("model=m&width=abc", false, "width|number|abc");
