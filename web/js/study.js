@@ -1,7 +1,8 @@
 // study.js - the course study's figures (../shared/STUDY.md, tables 1 to 4)
 // for the models arbor has too, galleon and castle. The study measured seven
 // trees (no BVH-SAH) on its own machine and ray tracer; the compare view shows
-// them beside ours, labelled, never mixed into our figures.
+// them beside ours, labelled, never mixed into our figures, and only for a
+// model of the study's size (an upload named castle may be another mesh).
 
 export const STUDY_SOURCE = 'Gurlaskie, "Acceleration Structures for Ray Tracing: k-d Trees and BVHs" (STUDY.md), tables 1–4';
 
@@ -42,6 +43,9 @@ export const STUDY_TABLES = {
 // The study's triangle counts for its models (figure 1).
 export const STUDY_TRIANGLES = { galleon: 4698, castle: 13114 };
 
+/** The number of the study's table of a metric, or 0 (none of its tables has it). */
+export const studyTable = (metric) => STUDY_TABLES[metric]?.table || 0;
+
 /** The study's figure for one tree, or null (no such model, metric or tree). */
 export function studyFigure(model, metric, accel, builder) {
     const t = STUDY_TABLES[metric];
@@ -50,4 +54,6 @@ export function studyFigure(model, metric, accel, builder) {
     return i < 0 ? null : t[model][i];
 }
 
-export const hasStudy = (model) => Object.prototype.hasOwnProperty.call(STUDY_TRIANGLES, model);
+/** Whether the study measured this model: its name, and its triangle count where known. */
+export const hasStudy = (model, triangles) => Object.prototype.hasOwnProperty.call(STUDY_TRIANGLES, model) &&
+    (triangles === undefined || triangles === STUDY_TRIANGLES[model]);
