@@ -13,7 +13,7 @@
 import * as api from './api.js';
 import { withToken } from './token.js';
 import { STUDY_SOURCE, studyFigure, studyTable, hasStudy } from './study.js';
-import { fmt, fmtBytes, triangles, treeLabel } from './panels.js';
+import { esc, fmt, fmtBytes, triangles, treeLabel } from './panels.js';
 
 // The job's order of its rows (kinds, then builders), which is the study's order of its columns.
 const TREES = [
@@ -85,7 +85,6 @@ const METRICS = [
     },
 ];
 
-const esc = (s) => String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
 const $ = (id) => document.getElementById(id);
 const label = (a, b) => treeLabel({ accel: a, builder: b });
 const num = (r, key) => (r && r[key] !== null && r[key] !== undefined ? Number(r[key]) : null);

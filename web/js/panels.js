@@ -1,6 +1,7 @@
 // panels.js - the stats table, the heat legend and the ray inspector's list.
 
-const esc = (s) => String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
+/** Text made safe to put in HTML. */
+export const esc = (s) => String(s).replace(/[&<>"']/g, (c) => ({ '&': '&amp;', '<': '&lt;', '>': '&gt;', '"': '&quot;', "'": '&#39;' }[c]));
 
 /** The decimals a number of magnitude a is shown with: `digits`, fewer from 100 up. */
 const decimals = (a, digits) => (a >= 1000 ? 0 : a >= 100 ? 1 : digits);
