@@ -67,7 +67,12 @@ report() {
     skipped=$((skipped + k))
     if [ "$f" -ne 0 ]; then
         echo "FAIL $name (exit $rc, ${secs}s):"
-        grep -E ':FAIL|Segmentation|Assert|error|rror:|^not ok' "$log" | head -n 40
+        if grep -q '^TAP version' "$log"; then
+            # node's TAP: a failure's message (and the daemon's log tail) follow its "not ok", up to "  ..."
+            awk '/^not ok/ { p = 1 } p { print } /^  \.\.\.$/ { p = 0 }' "$log" | head -n 80
+        else
+            grep -E ':FAIL|Segmentation|Assert|error|rror:|^not ok' "$log" | head -n 40
+        fi
         [ -z "$summary" ] && tail -n 20 "$log"
     else
         echo "ok   $name: $n tests, $k skipped (${secs}s)"

@@ -1,8 +1,8 @@
 // viewer.test.mjs - the viewer (web/) in Debian's chromium against a real
 // arbord serve: frames, orbit, stats and legend, the box overlay against the
-// rendered model, the ray inspector against heat mode, compare, URL state,
-// upload errors, the phone layout, a daemon with --token-file, layouts that
-// fit their cards, and a clean console.
+// rendered model, the field of view, the ray inspector against heat mode,
+// compare, URL state, upload errors, the phone layout, a daemon with
+// --token-file, layouts that fit their cards, and a clean console.
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
@@ -287,6 +287,54 @@ test('the compare view draws Embree beside the trees, at its default and in its 
     });
 });
 
+test('the field of view slider: the model scales by the tangents\' ratio about the centre, its root box still its silhouette, the URL and a reset keep it', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        const rec = recordRequests(page);
+        await page.goto(`${d.base}/?model=cornell&mode=normals&spp=1`);
+        await waitFullFrame(page);
+        assert.equal(await page.inputValue('#fov'), '45');
+        const bg = rec.renders.filter((r) => r.width === 640).pop().background.map((c) => Math.round(c * 255));
+        const wide = await framePixels(page, 0, bg, 10);
+        const [x0, y0, x1, y1] = wide.bbox;
+        assert.ok(x0 > 0 && y0 > 0 && x1 < wide.w && y1 < wide.h, `the model is cut by the frame at 45 degrees: ${wide.bbox}`);
+        await page.fill('#fov', '90');
+        await page.dispatchEvent('#fov', 'input');
+        const cam = await page.waitForFunction(() => {
+            const c = document.querySelector('canvas.image[data-pane="0"][data-frame="full"]');
+            return c && JSON.parse(c.dataset.camera).fov === 90 && JSON.parse(c.dataset.camera);
+        }, null, { timeout: 30000 }).then((h) => h.jsonValue());
+        assert.equal(await page.textContent('#fov-out'), '90°');
+        assert.equal(rec.renders.filter((r) => r.width === 640).pop().camera.fov, 90);
+        // the eye stays: every image point moves toward the centre by tan(22.5)/tan(45)
+        const k = Math.tan(Math.PI / 8), cx = wide.w / 2, cy = wide.h / 2;
+        const px = await framePixels(page, 0, bg, 10);
+        const want = [cx + k * (x0 - cx), cy + k * (y0 - cy), cx + k * (x1 - cx), cy + k * (y1 - cy)];
+        px.bbox.forEach((v, i) => assert.ok(Math.abs(v - want[i]) <= 2, `the model at 90 degrees spans ${px.bbox}, not ${want.map(Math.round)}`));
+        // the overlay projects with the same field of view: cornell's root box is its silhouette
+        await page.check('#boxes-on');
+        await page.waitForFunction(() => /\d box/.test(document.getElementById('boxes-info').textContent), null, { timeout: 30000 });
+        const ov = await overlayBox(page, 0, px.w, px.h);
+        assert.ok(ov, 'no box drawn over the frame');
+        ov.bbox.forEach((v, i) => assert.ok(Math.abs(v - px.bbox[i]) <= 4, `root box ${ov.bbox.map(Math.round)} is not the model's silhouette ${px.bbox}`));
+        await screenshot(page, 'fov-90');
+        assert.match(page.url(), /[?&]fov=90(&|$)/);
+        await page.reload();
+        assert.equal((await waitFullFrame(page)).fov, 90);
+        assert.equal(await page.inputValue('#fov'), '90');
+        // Reset view (R) resets the orbit, not the field of view
+        await page.goto(page.url().replace(/yaw=[^&]*/, 'yaw=77'));
+        assert.equal((await waitFullFrame(page)).yaw, 77);
+        await page.keyboard.press('r');
+        const reset = await page.waitForFunction(() => {
+            const c = document.querySelector('canvas.image[data-pane="0"][data-frame="full"]');
+            return c && JSON.parse(c.dataset.camera).yaw !== 77 && JSON.parse(c.dataset.camera);
+        }, null, { timeout: 30000 }).then((h) => h.jsonValue());
+        assert.deepEqual(reset, cam);
+        assert.equal(await page.inputValue('#fov'), '90');
+        assert.deepEqual(errors, []);
+    });
+});
+
 test('a link with a view in its URL restores the controls', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
         const rec = recordRequests(page);
@@ -299,6 +347,8 @@ test('a link with a view in its URL restores the controls', T, async () => {
         assert.equal(await page.inputValue('#mode'), 'normals');
         assert.equal(await page.inputValue('#spp'), '1');
         assert.equal(await page.inputValue('#res'), '320x240');
+        assert.equal(await page.inputValue('#fov'), '50');
+        assert.equal(await page.textContent('#fov-out'), '50°');
         assert.equal(await page.isChecked('#boxes-on'), true);
         assert.equal(await page.inputValue('#depth'), '3');
         assert.equal(await page.isChecked('#boxes-all'), true);

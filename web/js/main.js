@@ -319,6 +319,11 @@ class App {
             // each pane takes the new aspect with its first frame at it: the old frame is not stretched meanwhile
             this.changed();
         });
+        $('fov').addEventListener('input', (e) => {
+            // as an orbit does: quick frames while the slider moves, a full one once it rests
+            this.updateView((v) => { v.fov = Number(e.target.value); });
+            $('fov-out').textContent = `${r4(s.view.fov)}°`;
+        });
         $('reset').addEventListener('click', () => this.resetView());
         $('save-png').addEventListener('click', () => this.savePNG());
         $('boxes-on').addEventListener('change', (e) => { s.boxes.on = e.target.checked; this.changed({ boxes: true }); });
@@ -395,6 +400,8 @@ class App {
             $('res').append(o);
         }
         $('res').value = res;
+        $('fov').value = String(s.view.fov);
+        $('fov-out').textContent = `${r4(s.view.fov)}°`;
         $('boxes-on').checked = s.boxes.on;
         const depth = $('depth');
         if (s.boxes.depth > Number(depth.max)) depth.max = String(s.boxes.depth);
