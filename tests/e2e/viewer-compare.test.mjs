@@ -6,8 +6,10 @@
 // figures; errors (over the memory budget, a busy daemon, a job the daemon
 // lost) read plainly; Cancel is reachable and says it is cancelling; a reload
 // follows the job; the study's figures are STUDY.md's and only for the
-// study's meshes; a phone shows the model first and scrolls the table inside
-// its card.
+// study's meshes; the charts' bars are linear from zero, their lengths
+// comparing as their figures do; figures that read alike in the table are all
+// the best; a phone shows the model first and scrolls the table inside its
+// card.
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
@@ -74,11 +76,12 @@ function table(page) {
 const progress = (page) => page.textContent('#cmp-progress-text');
 const waitProgress = (page, re, timeout) => page.waitForFunction((src) => new RegExp(src).test(document.getElementById('cmp-progress-text').textContent), re.source, { timeout });
 
-/** The trees whose figure is the best of `rows` for metric k (ties all). */
-function bestTrees(rows, k) {
-    const vals = rows.map((r) => r[k]);
-    const best = LOWER.includes(k) ? Math.min(...vals) : Math.max(...vals);
-    return rows.filter((r) => r[k] === best).map((r) => `${r.accel} ${r.builder}`).sort();
+/** The trees whose figure for metric k is the best as the table shows it (shown: table()'s rows): figures that
+ *  read alike tie, all the best. */
+function bestTrees(shown, k) {
+    const read = shown.map((r) => Number(r.cells[k].text.replace(/,/g, '')));
+    const best = LOWER.includes(k) ? Math.min(...read) : Math.max(...read);
+    return shown.filter((_, i) => read[i] === best).map((r) => r.tree).sort();
 }
 
 test("the table holds the bench job's figures and /api/stats', marks each column's real best, and sorts from the keyboard", T, async () => {
@@ -110,9 +113,9 @@ test("the table holds the bench job's figures and /api/stats', marks each column
         }
         for (const k of METRICS) {
             const marked = shown.filter((r) => r.cells[k].best).map((r) => r.tree).sort();
-            assert.deepEqual(marked, bestTrees(job.rows, k), `${k}: the best marked`);
+            assert.deepEqual(marked, bestTrees(shown, k), `${k}: the best marked`);
             const bars = await page.$$eval(`figure.chart[data-metric="${k}"] rect.bar.ours.best`, (rs) => rs.map((r) => `${r.dataset.accel} ${r.dataset.builder}`).sort());
-            if (k !== 'bytes_per_tri') assert.deepEqual(bars, bestTrees(job.rows, k), `${k}: the best bar`);
+            if (k !== 'bytes_per_tri') assert.deepEqual(bars, bestTrees(shown, k), `${k}: the best bar`);
         }
         // the tree figures are /api/stats' for the same trees (a bvh's bytes: its wide tree's, which rays traverse)
         for (const [accel, builder] of TREES) {
@@ -183,7 +186,7 @@ test('while a job runs the table says which tree is being measured and which wai
         const done = await table(page);
         assert.deepEqual(done.map((r) => r.state), Array(8).fill(''));
         for (const k of METRICS) {
-            assert.deepEqual(done.filter((r) => r.cells[k].best).map((r) => r.tree), bestTrees(job.rows.slice(0, 8), k), `${k}: Embree is beside, not ranked`);
+            assert.deepEqual(done.filter((r) => r.cells[k].best).map((r) => r.tree), bestTrees(done, k), `${k}: Embree is beside, not ranked`);
         }
         assert.equal(await page.getAttribute('#cmp-table tfoot td[data-key="primary_mrays"]', 'data-value'), '999');
         assert.equal(seen.posts[0].embree, true);
@@ -364,6 +367,122 @@ test("the study's figures under ours are STUDY.md's, and only for a model of the
         assert.equal(await page.locator('#cmp-table tbody tr').count(), 8);
         assert.equal(await page.locator('#cmp-table .study-fig, figure.chart rect.bar.study, .chart-note').count(), 0,
             "the study's galleon figures beside a one-triangle galleon");
+        assert.deepEqual(errors, []);
+    });
+});
+
+/**
+ * A chart as drawn, in CSS pixels: its bars (ours and the study's: figure, left end, width), its axis ticks
+ * (figure read from the label, centre) and Embree's line (its x), if any.
+ */
+function chart(page, key) {
+    return page.$eval(`figure.chart[data-metric="${key}"]`, (fig) => {
+        const box = (el) => el.getBoundingClientRect();
+        return {
+            bars: [...fig.querySelectorAll('rect.bar')].map((r) => ({
+                what: `${r.classList.contains('study') ? 'study' : 'ours'} ${r.dataset.accel} ${r.dataset.builder}`,
+                value: Number(r.dataset.value), left: box(r).left, width: box(r).width,
+            })),
+            ticks: [...fig.querySelectorAll('text.tick')].map((t) => ({
+                text: t.textContent, value: Number(t.textContent.replace(/,/g, '')), x: box(t).left + box(t).width / 2,
+            })),
+            embree: fig.querySelector('line.embree') ? box(fig.querySelector('line.embree')).left + box(fig.querySelector('line.embree')).width / 2 : null,
+            // SVG units are scaled to the figure's width
+            unit: box(fig.querySelector('svg')).width / fig.querySelector('svg').viewBox.baseVal.width,
+        };
+    });
+}
+
+/** Asserts a chart is linear from zero: each bar's length (a tiny figure's sliver aside), each tick and Embree's
+ *  line (figure e) at its figure times one scale, within 1 px; ticks at a 1-2-5 step from 0. */
+function assertLinear(c, key, e = null) {
+    const longest = c.bars.reduce((a, b) => (b.width > a.width ? b : a));
+    const k = longest.width / longest.value; // px per unit
+    const x0 = longest.left;
+    for (const b of c.bars) {
+        const want = b.value * k;
+        // a figure under a couple of SVG units is drawn as a sliver
+        if (want < 3 * c.unit) assert.ok(b.width >= 1.5 * c.unit && b.width <= 3 * c.unit + 1, `${key} ${b.what}: ${b.width} px for ${b.value}, not a sliver`);
+        else assert.ok(Math.abs(b.width - want) <= 1, `${key} ${b.what}: ${b.width.toFixed(1)} px for ${b.value}, ${want.toFixed(1)} px by the longest bar's scale`);
+        assert.ok(Math.abs(b.left - x0) <= 0.5, `${key} ${b.what} does not start at the axis`);
+    }
+    assert.ok(c.ticks.length >= 2, `${key}: ${c.ticks.length} ticks`);
+    assert.equal(c.ticks[0].text, '0', `${key}: the axis does not start at 0`);
+    const step = c.ticks[1].value;
+    const mantissa = Number((step / 10 ** Math.floor(Math.log10(step))).toPrecision(6));
+    assert.ok([1, 2, 5].includes(mantissa), `${key}: a tick step of ${step}, not a round 1-2-5 one`);
+    c.ticks.forEach((t, i) => {
+        assert.ok(Math.abs(t.value - i * step) <= step * 1e-6, `${key}: tick ${i} says ${t.text}, not ${i * step}`);
+        assert.ok(Math.abs(t.x - x0 - t.value * k) <= 1, `${key}: tick ${t.text} at ${(t.x - x0).toFixed(1)} px, ${(t.value * k).toFixed(1)} px by the bars' scale`);
+    });
+    if (e !== null) assert.ok(Math.abs(c.embree - x0 - e * k) <= 1, `${key}: Embree's line at ${(c.embree - x0).toFixed(1)} px, ${(e * k).toFixed(1)} px by the bars' scale`);
+}
+
+test("the charts are linear from zero: a bar's length, a tick's and Embree's line's place are their figures'", T, async () => {
+    await withViewer({ daemon: { shared: ['castle.obj'] } }, async (d, { page, errors }) => {
+        // times far apart: a log scale drew a 2.4 times longer time about 21 times longer
+        const times = { build_ms: [0.5, 1.2, 0.8, 3.1, 2.4, 12, 7.5, 1], render_ms: [100, 240, 180, 130, 410, 95, 150, 60] };
+        const rows = rowsFor('sphere').map((r, i) => ({ ...r, build_ms: times.build_ms[i], render_ms: times.render_ms[i] }));
+        const embree = { model: 'sphere', accel: 'embree', builder: 'default', build_ms: 0.3, primary_mrays: 150, diffuse_mrays: 40, shadow_mrays: 90 };
+        const job = { id: '91', model: 'sphere', state: 'done', rows: [...rows, embree] };
+        await fakeBench(page, job);
+        await page.goto(`${d.base}/?model=sphere&tab=compare`);
+        await page.waitForFunction(() => document.getElementById('model').value === 'sphere');
+        await page.click('#cmp-start');
+        await waitProgress(page, /^done/);
+        const keys = await page.$$eval('figure.chart', (fs) => fs.map((f) => f.dataset.metric));
+        assert.ok(keys.includes('build_ms') && keys.includes('render_ms'), keys.join());
+        for (const key of keys) assertLinear(await chart(page, key), key, embree[key] !== undefined && /mrays/.test(key) ? embree[key] : null);
+        assert.doesNotMatch(await page.textContent('#charts'), /log/i);
+        await screenshot(page, 'compare-charts');
+
+        // the study's figures beside ours are on the same scale (its build times dwarf ours: slivers)
+        job.id = '92';
+        job.model = 'castle';
+        job.rows = rowsFor('castle').map((r, i) => ({ ...r, render_ms: times.render_ms[i] * 10 }));
+        await page.selectOption('#model', 'castle');
+        await page.click('#cmp-start');
+        await waitProgress(page, /^done/);
+        for (const key of ['build_ms', 'render_ms']) {
+            const c = await chart(page, key);
+            assert.equal(c.bars.filter((b) => b.what.startsWith('study')).length, 7, key);
+            assertLinear(c, key);
+        }
+        await screenshot(page, 'compare-charts-study');
+        assert.deepEqual(errors, []);
+    });
+});
+
+test('figures that read alike at the precision shown are all the best, starred in the table and outlined in the chart', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        // BVH builds all shown as 0.02 ms, k-d's 0.026 as 0.03; primary rates 51.004 and 50.996 both shown as 51.00;
+        // a whole depth of 2 shown as "2" beside 2.001 and 2.004 shown as "2.00", the same figure
+        const build = [0.021, 0.018, 0.024, 0.019, 0.031, 0.05, 0.026, 1.2];
+        const primary = [51.004, 50.996, 50.994, 40.5, 30.5, 20.5, 10.5, 45.5];
+        const depth = [3.5, 2.001, 2.006, 2.5, 2, 4.5, 2.004, 5.5];
+        const rows = rowsFor('sphere').map((r, i) => ({ ...r, build_ms: build[i], primary_mrays: primary[i], mean_leaf_depth: depth[i] }));
+        await fakeBench(page, { id: '95', model: 'sphere', state: 'done', rows });
+        await page.goto(`${d.base}/?model=sphere&tab=compare`);
+        await page.waitForFunction(() => document.getElementById('model').value === 'sphere');
+        await page.click('#cmp-start');
+        await waitProgress(page, /^done/);
+        const shown = await table(page);
+        const want = {
+            build_ms: { texts: ['0.02', '0.02', '0.02', '0.02', '0.03', '0.05', '0.03', '1.20'], best: ['bvh mean', 'bvh median', 'bvh sah', 'bvh spatial'] },
+            primary_mrays: { texts: ['51.00', '51.00', '50.99', '40.50', '30.50', '20.50', '10.50', '45.50'], best: ['bvh median', 'bvh spatial'] },
+            mean_leaf_depth: { texts: ['3.50', '2.00', '2.01', '2.50', '2', '4.50', '2.00', '5.50'], best: ['bvh median', 'kd mean', 'kd spatial'] },
+        };
+        for (const [k, { texts, best }] of Object.entries(want)) {
+            assert.deepEqual(shown.map((r) => r.cells[k].text), texts, `${k}: the figures shown`);
+            assert.deepEqual(shown.filter((r) => r.cells[k].best).map((r) => r.tree).sort(), best, `${k}: the trees starred`);
+            const stars = await page.$$eval(`#cmp-table tbody td[data-key="${k}"]`, (tds) => tds.filter((td) => td.querySelector('.best-mark')).length);
+            assert.equal(stars, best.length, `${k}: the stars`);
+            const bars = await page.$$eval(`figure.chart[data-metric="${k}"] rect.bar.ours.best`, (rs) => rs.map((r) => `${r.dataset.accel} ${r.dataset.builder}`).sort());
+            assert.deepEqual(bars, best, `${k}: the bars outlined as best`);
+            const named = best.map((t) => t.replace(/^bvh/, 'BVH').replace(/^kd/, 'k-d'));
+            const key = await page.textContent(`figure.chart[data-metric="${k}"] .best-key`);
+            assert.deepEqual(key.replace(/^best: /, '').split(', ').sort(), named.sort(), `${k}: the chart's key`);
+        }
         assert.deepEqual(errors, []);
     });
 });

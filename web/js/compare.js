@@ -23,16 +23,16 @@ const TREES = [
 
 // A bench row's figures (API.md "Bench jobs"; docs/BENCH.md says how they are measured) in the table's order:
 // head: the column's heading; title: the chart's; group: the columns' group; what: what it measures, for a
-// person. chart: drawn as a bar chart too (log: on a log scale; line: with Embree's figure as a line).
+// person. chart: drawn as a bar chart too (line: with Embree's figure as a line).
 const METRICS = [
     {
-        key: 'build_ms', head: 'Build', title: 'Build time', unit: 'ms', better: 'lower', group: 'Time', chart: true, log: true,
+        key: 'build_ms', head: 'Build', title: 'Build time', unit: 'ms', better: 'lower', group: 'Time', chart: true,
         what: 'Wall time to build the tree from the triangles already in memory. The job builds trees of its own: the ' +
             "Viewer's build time of the same tree (from /api/stats) is another measurement.",
     },
     {
         key: 'render_ms', head: 'Render', title: 'Render time, one 1024 × 768 frame', unit: 'ms', better: 'lower', group: 'Time',
-        chart: true, log: true,
+        chart: true,
         what: 'Wall time of one shaded 1024 × 768 frame of the model from the protocol view, 1 sample per pixel, with hard ' +
             'shadows and mirrors. The study timed frames of its own.',
     },
@@ -118,12 +118,17 @@ function readableBytes(error) {
     return error.replace(/\b(\d{5,})(-byte| bytes)?/g, (_, n, unit) => `${n}${unit || ''} (${fmtBytes(Number(n))})`);
 }
 
-/** The trees whose figure for metric m is the best of the eight (ties all), or none until all eight are measured. */
+/** One of our figures as the table and the charts show it. */
+const shown = (v) => fmt(v);
+
+/** The trees whose figure for metric m is the best of the eight, or none until all eight are measured. Judged as
+ *  shown: figures that read alike ("0.02" and "0.02", or "2" and "2.00") tie, all starred, not the raw smallest. */
 function bestOf(m, ours) {
     const vals = TREES.map(([a, b]) => num(ours(a, b), m.key));
     if (vals.some((v) => v === null)) return new Set();
-    const best = m.better === 'lower' ? Math.min(...vals) : Math.max(...vals);
-    return new Set(TREES.filter((_, i) => vals[i] === best).map(([a, b]) => `${a} ${b}`));
+    const read = vals.map((v) => Number(shown(v).replace(/,/g, '')));
+    const best = m.better === 'lower' ? Math.min(...read) : Math.max(...read);
+    return new Set(TREES.filter((_, i) => read[i] === best).map(([a, b]) => `${a} ${b}`));
 }
 
 export class Compare {
@@ -443,7 +448,7 @@ export class Compare {
         if (focusedSort) $('cmp-table-wrap').querySelector(`button[data-sort="${focusedSort}"]`)?.focus();
         $('charts').innerHTML = METRICS.filter((m) => m.chart).map((m) => chartHTML(m, v)).join('') +
             (v.study ? `<p class="muted small chart-note">Study figures: ${esc(STUDY_SOURCE)}; measured on another machine
-              and ray tracer (no BVH-SAH there), shown for shape, not as a race. Times on a log scale.</p>` : '');
+              and ray tracer (no BVH-SAH there), shown for shape, not as a race.</p>` : '');
     }
 
     /** The eight trees in the order chosen: sorted by a column, best first, trees without the figure last. */
@@ -491,7 +496,7 @@ export class Compare {
                 const best = v.best.get(m.key).has(`${a} ${b}`);
                 const fig = v.study ? studyFigure(v.model, m.key, a, b) : null;
                 const study = fig === null ? '' : `<span class="study-fig">study ${fmt(fig)}</span>`;
-                const text = val !== null ? fmt(val) : state === 'measuring…' ? '…' : '—';
+                const text = val !== null ? shown(val) : state === 'measuring…' ? '…' : '—';
                 return `<td data-key="${m.key}" data-value="${val ?? ''}"${classes(starts.has(m.key) && 'cmp-first', best && 'best')}>${text}${best
                     ? '<span class="best-mark" aria-hidden="true"> ★</span><span class="visually-hidden"> (best)</span>' : ''}${study}</td>`;
             }).join('');
@@ -515,49 +520,60 @@ export class Compare {
     }
 }
 
-// Axis labels are centred on their ticks, at least this far apart (SVG units: 1M, 100k).
-const TICK_GAP = 34;
+// Axis ticks at least this far apart, so that they stay few, and their labels (each centred on its tick) at least
+// this far from each other (SVG units).
+const TICK_APART = 34, TICK_GAP = 10;
 // A value label's width per character (10 px text, SVG units), a little over the widest digit.
 const CHAR_W = 6.5;
+const textW = (text) => text.length * CHAR_W;
 
-/** 1, 10, 100, 1k, 10k, 100k, 1M: log-axis ticks that fit side by side. */
-function compact(v) {
-    if (v >= 1e6) return `${v / 1e6}M`;
-    if (v >= 1e3) return `${v / 1e3}k`;
-    return String(v);
+/** The ticks ([x, label]) of an axis from 0 at k SVG units per unit, up to x = extent: at the finest
+ *  1-2-5 step whose labels fit side by side, so that they read as round numbers. */
+function ticks(k, extent) {
+    for (let e = Math.floor(Math.log10(TICK_APART / k)); ; e++) {
+        for (const m of [1, 2, 5]) {
+            const step = m * 10 ** e, digits = Math.max(0, Math.ceil(-Math.log10(step) - 1e-9));
+            const list = [];
+            for (let i = 0; i * step * k <= extent + 0.01; i++) list.push([i * step * k, fmt(i * step, digits)]);
+            if (step * k >= Math.max(TICK_APART, ...list.map((t) => textW(t[1]) + TICK_GAP))) return list;
+        }
+    }
+}
+
+/** A linear scale from zero (value -> SVG units from the axis), so that bars' lengths compare as their figures do:
+ *  as long as the plot (plotW) lets it be, and as each bar's value label (text), past its end, lets it be within
+ *  the room to the chart's edge. A tiny figure still gets a sliver. bars: [{value, text}]. */
+function linearScale(bars, plotW, room) {
+    const drawn = bars.filter((b) => b.value > 0);
+    const k = Math.min(...drawn.map((b) => Math.min(plotW, room - 4 - textW(b.text)) / b.value));
+    const scale = (x) => (x > 0 ? Math.max(2, x * k) : 0);
+    scale.ticks = drawn.length ? ticks(k, plotW) : [];
+    return scale;
 }
 
 /** One metric's bar chart of the eight trees (v: the view render() built), the best bar outlined and named. */
 function chartHTML(c, v) {
     const table = v.study ? studyTable(c.key) : 0;
-    const rows = TREES.map(([a, b]) => ({
-        a, b,
-        v: num(v.ours(a, b), c.key),
-        s: table ? studyFigure(v.model, c.key, a, b) : null,
-    }));
+    const rows = TREES.map(([a, b]) => {
+        const ours = num(v.ours(a, b), c.key), study = table ? studyFigure(v.model, c.key, a, b) : null;
+        return {
+            a, b, v: ours, s: study,
+            text: ours === null ? (v.partial ? '…' : '—') : shown(ours),
+            studyText: study === null ? 'not in the study' : `study ${fmt(study)}`,
+        };
+    });
     const e = c.line ? num(v.embree, c.key) : null;
-    const values = rows.flatMap((r) => [r.v, r.s]).concat(e === null ? [] : [e]).filter((x) => x !== null && x > 0);
     const W = 360, labelW = 84, valueW = 58, plotW = W - labelW - valueW;
     const barH = table ? 10 : 14, gap = table ? 9 : 7, groupH = table ? barH * 2 + 2 : barH;
     // a line above the bars for Embree's label
     const top = c.line && (e !== null || v.peerAsked) ? 20 : 6, H = top + TREES.length * (groupH + gap) + 16;
-    let scale;
-    if (c.log && values.length) {
-        const lo = Math.floor(Math.log10(Math.min(...values)) - 0.0001);
-        const hi = Math.ceil(Math.log10(Math.max(...values)) + 0.0001);
-        const decades = Math.max(1, hi - lo), every = Math.ceil(TICK_GAP / (plotW / decades));
-        scale = (x) => (x > 0 ? Math.max(2, ((Math.log10(x) - lo) / decades) * plotW) : 0);
-        scale.ticks = [];
-        for (let k = lo; k <= hi; k += every) scale.ticks.push([10 ** k, ((k - lo) / decades) * plotW]);
-    } else {
-        const max = values.length ? Math.max(...values) : 1;
-        scale = (x) => (x > 0 ? (x / max) * plotW : 0);
-        scale.ticks = [[0, 0], [max, plotW]];
-    }
+    // every figure drawn sets the scale; Embree's line has its label above the bars, none past its end
+    const scale = linearScale(rows.flatMap((r) => [{ value: r.v, text: r.text }, { value: r.s, text: r.studyText }])
+        .concat([{ value: e, text: '' }]), plotW, W - labelW);
     const ex = e === null ? null : labelW + scale(e);
     // a bar's value label starts past the bar's end, or past Embree's line where it would cross it
     const valueAt = (end, y, text, cls = '') => {
-        const x = end + 4, crosses = ex !== null && x - 2 < ex && x + text.length * CHAR_W + 2 > ex;
+        const x = end + 4, crosses = ex !== null && x - 2 < ex && x + textW(text) + 2 > ex;
         return `<text class="value${cls}" x="${(crosses ? ex + 4 : x).toFixed(1)}" y="${y}">${text}</text>`;
     };
     const best = v.best.get(c.key);
@@ -568,25 +584,24 @@ function chartHTML(c, v) {
         svg += `<text x="${labelW - 6}" y="${y + barH - 2}" text-anchor="end">${label(r.a, r.b)}</text>`;
         const w = r.v === null ? 0 : scale(r.v);
         svg += `<rect class="bar ours${isBest}" x="${labelW}" y="${y}" width="${w.toFixed(1)}" height="${barH}" rx="2"
-                 data-accel="${r.a}" data-builder="${r.b}" data-value="${r.v ?? ''}"><title>ours, ${label(r.a, r.b)}: ${fmt(r.v)} ${c.unit}${isBest ? ' (best)' : ''}</title></rect>`;
-        svg += valueAt(labelW + w, y + barH - 2, r.v === null ? (v.partial ? '…' : '—') : fmt(r.v), isBest);
+                 data-accel="${r.a}" data-builder="${r.b}" data-value="${r.v ?? ''}"><title>ours, ${label(r.a, r.b)}: ${r.text} ${c.unit}${isBest ? ' (best)' : ''}</title></rect>`;
+        svg += valueAt(labelW + w, y + barH - 2, r.text, isBest);
         if (table) {
             const ys = y + barH + 2;
             const ws = r.s === null ? 0 : scale(r.s);
             if (r.s !== null) {
                 svg += `<rect class="bar study" x="${labelW}" y="${ys}" width="${ws.toFixed(1)}" height="${barH}" rx="2"
                          data-accel="${r.a}" data-builder="${r.b}" data-value="${r.s}"><title>study, ${label(r.a, r.b)}: ${fmt(r.s)} ${c.unit}</title></rect>`;
-                svg += valueAt(labelW + ws, ys + barH - 2, `study ${fmt(r.s)}`);
+                svg += valueAt(labelW + ws, ys + barH - 2, r.studyText);
             } else {
-                svg += `<text class="value" x="${labelW + 2}" y="${ys + barH - 2}">not in the study</text>`;
+                svg += `<text class="value" x="${labelW + 2}" y="${ys + barH - 2}">${r.studyText}</text>`;
             }
         }
     });
     const axisY = top + TREES.length * (groupH + gap) - gap + 4;
     svg += `<line class="axis" x1="${labelW}" y1="${top - 2}" x2="${labelW}" y2="${axisY}"/>`;
-    for (const [x, px] of scale.ticks) {
-        const tick = c.log ? compact(x) : fmt(x, x < 1 ? 2 : 0);
-        svg += `<text class="value tick" x="${labelW + px}" y="${axisY + 11}" text-anchor="middle">${tick}</text>`;
+    for (const [px, tick] of scale.ticks) {
+        svg += `<text class="value tick" x="${(labelW + px).toFixed(1)}" y="${axisY + 11}" text-anchor="middle">${tick}</text>`;
     }
     const peer = v.embree && v.embree.builder === 'robust' ? 'Embree, robust' : 'Embree';
     if (ex !== null) {
@@ -598,7 +613,7 @@ function chartHTML(c, v) {
     const bestNames = TREES.filter(([a, b]) => best.has(`${a} ${b}`)).map(([a, b]) => label(a, b)).join(', ');
     const aria = `${c.title} of the eight trees of ${v.model}${c.unit ? ', ' + c.unit : ''}, ${c.better} is better` +
         (bestNames ? `; best: ${bestNames}` : '') + (table ? `, with the study's table ${table} beside` : '');
-    const scaleWords = [c.unit, c.log ? 'log scale' : '', `${c.better} is better`].filter(Boolean).join(', ');
+    const scaleWords = [c.unit, `${c.better} is better`].filter(Boolean).join(', ');
     return `<figure class="card chart" data-metric="${c.key}">
         <h3>${esc(c.title)} <span class="muted small">(${esc(scaleWords)})</span></h3>
         <svg viewBox="0 0 ${W} ${H}" role="img" aria-label="${esc(aria)}">${svg}</svg>
