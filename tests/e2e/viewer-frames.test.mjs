@@ -1,11 +1,13 @@
 // viewer-frames.test.mjs - what a second UX review asked of the frames: a big
 // frame previewed, then asked for in strips no more at once than the daemon
 // renders and counted in the badge as they come; split view's strips taken
-// in turn, and the daemon's render time beside the wall time; a frame of the
+// in turn, and the daemon's render time beside the wall time (a heat frame's
+// without its scale's renders); a frame of the
 // tree left behind dimmed and labelled as such; Save PNG of both panes, only
 // once the current view's frame is complete; the depth slider says which
-// tree it walks; on a phone the ray panel comes to the tap and Upload stays
-// on the title's line.
+// tree it walks; a clicked ray is summed up under the frame, in view on a
+// laptop and a phone, with a way to the ray inspector; Upload stays on the
+// title's line.
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
@@ -115,6 +117,34 @@ test("split view takes the panes' strips in turn; the stats show the daemon's re
     });
 });
 
+test("a split heat frame's wall time leaves out the shared scale's renders before it, and its tooltip says so", T, async () => {
+    await withViewer({ daemon: { extraArgs: ['--threads', String(THREADS), '--prebuild', 'bvh:sah,kd:sah'] } }, async (d, { page, errors }) => {
+        // the scale's measurements (whole frames at 1 spp, as JSON) held for SCALE_MS: far longer than cornell's frame takes
+        const SCALE_MS = 6000;
+        let held = 0;
+        await page.route('**/api/render', async (route) => {
+            const b = JSON.parse(route.request().postData() || '{}');
+            if (b.format === 'json' && b.mode === 'heat' && !b.region) {
+                held++;
+                await new Promise((r) => setTimeout(r, SCALE_MS));
+            }
+            await route.continue().catch(() => {});
+        });
+        await page.goto(`${d.base}/?model=cornell&mode=heat&spp=1&split=kd:sah`);
+        await waitFullFrame(page, 0, 60000);
+        await waitFullFrame(page, 1, 60000);
+        assert.ok(held >= 2, `${held} scale measurements held: the frames did not wait for a shared scale`);
+        for (const i of [0, 1]) {
+            const shown = await page.evaluate((k) => window.arbor.panes[k].shown, i);
+            assert.equal(shown.req.mode, 'heat');
+            assert.ok(shown.renderMs > 0 && shown.renderMs < SCALE_MS, `pane ${i}'s wall time ${shown.renderMs} ms counts the scale's ${SCALE_MS} ms`);
+        }
+        const why = await page.getAttribute('#stats-table tr[data-key="frame_ms"] th', 'title');
+        assert.match(why, /heat frame's scale, measured at 1 spp before it, is not counted/);
+        assert.deepEqual(unprovoked(errors), []);
+    });
+});
+
 test("switching trees dims the old frame, says what is coming, and labels the old frame's numbers and legend as its tree's", T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
         await page.goto(`${d.base}/?model=sphere&accel=bvh&builder=sah&mode=heat&spp=1`);
@@ -208,7 +238,59 @@ test("the depth slider says it walks the traversed tree, and the BVH's binary de
     });
 });
 
-test('on a phone a tap on the frame brings the ray panel into view, and Upload stays on the title line', T, async () => {
+/**
+ * Clicks (taps, on a phone) the frame's centre and checks the line under the
+ * frame: in view, where the page was, and saying what the daemon's own
+ * POST /api/ray answers for that pixel; then its button brings the ray
+ * inspector's card into view, its heading focused. Returns the ray's answer
+ * and whether the inspector's counts were below the fold before the button.
+ */
+async function inspectCentre(page, tap) {
+    const frame = await page.$eval('#frame-0', (e) => { const r = e.getBoundingClientRect(); return { x: r.x + r.width / 2, y: r.y + r.height / 2 }; });
+    const scrolled = await page.evaluate(() => scrollY);
+    const answer = page.waitForResponse((r) => r.url().endsWith('/api/ray'));
+    if (tap) await page.touchscreen.tap(frame.x, frame.y);
+    else await page.mouse.click(frame.x, frame.y);
+    const ray = await (await answer).json();
+    await page.waitForSelector('#ray-details');
+    await afterPaint(page);
+    const line = await page.$eval('#ray-summary', (e) => { const r = e.getBoundingClientRect(); return { top: r.top, bottom: r.bottom, text: e.textContent }; });
+    const vh = await page.evaluate(() => innerHeight);
+    assert.ok(line.top >= 0 && line.bottom <= vh, `the ray's line is out of view: ${line.top}-${line.bottom} of ${vh}`);
+    assert.equal(await page.evaluate(() => scrollY), scrolled, 'the page scrolled away from the frame');
+    const n = (v) => v.toLocaleString('en-US');
+    assert.ok(ray.hit, 'the centre ray of cornell misses');
+    assert.ok(line.text.includes(`pixel (${ray.x}, ${ray.y})`), line.text);
+    assert.ok(line.text.includes(`hits triangle ${n(ray.hit.triangle)} at t ${ray.hit.t.toFixed(4)}`), line.text);
+    assert.ok(line.text.includes(`${n(ray.counts.nodes)} node steps + ${n(ray.counts.tris)} triangle tests`), line.text);
+    const countsBelow = await page.$eval('#ray-counts', (e) => e.getBoundingClientRect().top > innerHeight);
+    await page.click('#ray-details');
+    await page.waitForFunction(() => {
+        const r = document.getElementById('ray-panel').closest('.card').getBoundingClientRect();
+        return r.top >= -1 && r.top < innerHeight / 2;
+    });
+    assert.equal(await page.evaluate(() => document.activeElement.id), 'h-ray');
+    assert.equal(await page.getAttribute('#ray-counts', 'data-nodes'), String(ray.counts.nodes));
+    return { ray, countsBelow };
+}
+
+test('a click on the frame says its ray under the frame, in view, and Details brings the ray inspector; Escape clears both', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=cornell&spp=1`);
+        await waitFullFrame(page);
+        assert.ok(await page.$eval('#ray-summary', (e) => e.hidden), 'a ray line before any click');
+        const { countsBelow } = await inspectCentre(page, false);
+        // at 1280 x 800 the ray inspector's figures are below the fold: the line under the frame is what is seen
+        assert.ok(countsBelow, 'the ray inspector is in view without scrolling: this test would not show the line is needed');
+        await screenshot(page, 'ray-details');
+        await page.focus('#frame-0');
+        await page.keyboard.press('Escape');
+        await page.waitForFunction(() => document.getElementById('ray-summary').hidden);
+        assert.deepEqual(errors, []);
+    });
+});
+
+test('on a phone a tap on the frame says its ray under the frame, staying there, and Details brings the ray panel; Upload stays on the title line', T, async () => {
     await withViewer({ browser: { viewport: { width: 390, height: 844 }, mobile: true } }, async (d, { page, errors }) => {
         await page.goto(`${d.base}/?model=cornell&spp=1`);
         await waitFullFrame(page);
@@ -216,13 +298,7 @@ test('on a phone a tap on the frame brings the ray panel into view, and Upload s
         const title = await box('h1'), upload = await box('#upload-button');
         assert.ok(upload.top < title.bottom && upload.bottom > title.top, `Upload at ${JSON.stringify(upload)}, the title at ${JSON.stringify(title)}`);
         await screenshot(page, 'phone-header');
-        const frame = await page.$eval('#frame-0', (e) => { const r = e.getBoundingClientRect(); return { x: r.x + r.width / 2, y: r.y + r.height / 2 }; });
-        await page.touchscreen.tap(frame.x, frame.y);
-        await page.waitForSelector('#ray-counts');
-        await page.waitForFunction(() => {
-            const r = document.getElementById('ray-panel').closest('.card').getBoundingClientRect();
-            return r.top >= -1 && r.top < innerHeight / 2;
-        });
+        await inspectCentre(page, true);
         await screenshot(page, 'phone-ray');
         assert.deepEqual(errors, []);
     });

@@ -287,12 +287,13 @@ test('the compare view draws Embree beside the trees, at its default and in its 
     });
 });
 
-test('the field of view slider: the model scales by the tangents\' ratio about the centre, its root box still its silhouette, the URL and a reset keep it', T, async () => {
+test('the field of view slider: the model scales by the tangents\' ratio about the centre, its root box still its silhouette, the URL and a reset keep it, its note\'s button goes back to 45', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
         const rec = recordRequests(page);
         await page.goto(`${d.base}/?model=cornell&mode=normals&spp=1`);
         await waitFullFrame(page);
         assert.equal(await page.inputValue('#fov'), '45');
+        assert.equal(await page.isVisible('#fov-default'), false, 'a way back to 45 degrees at 45 degrees');
         const bg = rec.renders.filter((r) => r.width === 640).pop().background.map((c) => Math.round(c * 255));
         const wide = await framePixels(page, 0, bg, 10);
         const [x0, y0, x1, y1] = wide.bbox;
@@ -331,6 +332,17 @@ test('the field of view slider: the model scales by the tangents\' ratio about t
         }, null, { timeout: 30000 }).then((h) => h.jsonValue());
         assert.deepEqual(reset, cam);
         assert.equal(await page.inputValue('#fov'), '90');
+        // ... and the note's button goes back to the protocol's 45 degrees, then hides
+        await page.click('#fov-default');
+        const back = await page.waitForFunction(() => {
+            const c = document.querySelector('canvas.image[data-pane="0"][data-frame="full"]');
+            return c && JSON.parse(c.dataset.camera).fov === 45 && JSON.parse(c.dataset.camera);
+        }, null, { timeout: 30000 }).then((h) => h.jsonValue());
+        assert.deepEqual({ ...back, fov: 90 }, cam, 'going back to 45 degrees moved the eye');
+        assert.equal(await page.inputValue('#fov'), '45');
+        assert.equal(await page.textContent('#fov-out'), '45°');
+        assert.equal(await page.isVisible('#fov-default'), false);
+        await page.waitForFunction(() => /[?&]fov=45(&|$)/.test(location.search));
         assert.deepEqual(errors, []);
     });
 });

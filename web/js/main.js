@@ -6,7 +6,7 @@ import * as api from './api.js';
 import { protocolOrbit, clampPitch, requestCamera } from './camera.js';
 import { Pane, rowSamples } from './view.js';
 import { attachControls, MIN_DISTANCE, MAX_DISTANCE } from './controls.js';
-import { renderStats, renderLegend, renderRay, triangles, treeLabel } from './panels.js';
+import { renderStats, renderLegend, renderRay, renderRaySummary, triangles, treeLabel } from './panels.js';
 import { Compare } from './compare.js';
 import { Uploader } from './upload.js';
 import { Slots } from './slots.js';
@@ -27,8 +27,6 @@ const MAX_SAMPLES = 16777216;
 const LIST_RETRY_MS = 2000;
 // frame requests at once until GET /api/stats says how many frames the daemon renders at a time (queue.threads)
 const RENDER_SLOTS = 2;
-// the layout where the panels come far below the frame (arbor.css's phone layout)
-const NARROW = '(max-width: 900px)';
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => (v === null || v === '' || v === undefined ? NaN : Number(v));
@@ -114,7 +112,6 @@ class App {
         this.rayInspect = null;
         this.rayShown = undefined; // the rayInspect the ray panel shows: it is rebuilt only for another
         this.rayToken = 0;
-        this.revealRay = false;    // the ray being traced was asked for by a tap on a phone: its panel scrolls into view
         this.heatMeasure = null;   // {key, promise, controller, users}: the heat scale being measured (heatScale)
         this.depthTimer = 0;
         // a second tree the URL or the user chose is kept while split view is off
@@ -319,11 +316,10 @@ class App {
             // each pane takes the new aspect with its first frame at it: the old frame is not stretched meanwhile
             this.changed();
         });
-        $('fov').addEventListener('input', (e) => {
-            // as an orbit does: quick frames while the slider moves, a full one once it rests
-            this.updateView((v) => { v.fov = Number(e.target.value); });
-            $('fov-out').textContent = `${r4(s.view.fov)}°`;
-        });
+        // as an orbit does: quick frames while the slider moves, a full one once it rests
+        $('fov').addEventListener('input', (e) => this.setFov(Number(e.target.value)));
+        // the slider's ends are a drag away from the protocol's field of view, which Reset view keeps
+        $('fov-default').addEventListener('click', () => this.setFov(protocolOrbit().fov));
         $('reset').addEventListener('click', () => this.resetView());
         $('save-png').addEventListener('click', () => this.savePNG());
         $('boxes-on').addEventListener('change', (e) => { s.boxes.on = e.target.checked; this.changed({ boxes: true }); });
@@ -400,8 +396,7 @@ class App {
             $('res').append(o);
         }
         $('res').value = res;
-        $('fov').value = String(s.view.fov);
-        $('fov-out').textContent = `${r4(s.view.fov)}°`;
+        this.showFov();
         $('boxes-on').checked = s.boxes.on;
         const depth = $('depth');
         if (s.boxes.depth > Number(depth.max)) depth.max = String(s.boxes.depth);
@@ -451,6 +446,19 @@ class App {
         this.pumpAll();
         this.scheduleDraw(); // Save PNG waits for the new view's frame
         this.saveURL();
+    }
+
+    setFov(fov) {
+        this.updateView((v) => { v.fov = fov; });
+        this.showFov();
+    }
+
+    /** The field of view's slider, its label and its way back to the protocol's. */
+    showFov() {
+        const fov = this.state.view.fov;
+        $('fov').value = String(fov);
+        $('fov-out').textContent = `${r4(fov)}°`;
+        $('fov-default').hidden = fov === protocolOrbit().fov;
     }
 
     resetView() {
@@ -526,11 +534,8 @@ class App {
         // rebuilt only for another ray: a rebuild would drop the focus and scroll of the panel's list and button
         if (this.rayShown !== this.rayInspect) {
             renderRay($('ray-panel'), this);
+            renderRaySummary($('ray-summary'), this, () => this.showRayDetails());
             this.rayShown = this.rayInspect;
-            if (this.revealRay && this.rayInspect && !this.rayInspect.pending) {
-                this.revealRay = false;
-                $('ray-panel').closest('.card').scrollIntoView({ block: 'start', behavior: 'smooth' });
-            }
         }
         this.boxesInfo();
         // the boxes are those of the tree rays traverse: a BVH's wide tree, a k-d tree's own; in split view the
@@ -594,8 +599,6 @@ class App {
         this.rayInspect = { pane: pane.index, req, pending: true };
         pane.ray = { req, data: null };
         this.scheduleDraw();
-        // on a phone the ray panel is far below the frame: it is brought to the tap once it holds the ray (drawPanels)
-        this.revealRay = matchMedia(NARROW).matches;
         const heatReq = {
             model: req.model, accel: req.accel, builder: req.builder, mode: 'heat', camera,
             width: W, height: H, spp: 1, region: { x: px.x, y: px.y, w: 1, h: 1 },
@@ -610,6 +613,13 @@ class App {
         this.rayInspect = r;
         pane.ray = r.data ? { req, data: r.data } : null;
         this.scheduleDraw();
+    }
+
+    /** The summary's button: the ray inspector's card scrolled to, its heading focused for a keyboard's next Tab. */
+    showRayDetails() {
+        const heading = $('h-ray');
+        heading.closest('.card').scrollIntoView({ block: 'start', behavior: 'smooth' });
+        heading.focus({ preventScroll: true });
     }
 
     /** The ray panel's Clear, or Escape: the ray goes and the focus returns to its frame (not to the page, with the button). */

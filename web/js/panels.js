@@ -33,7 +33,8 @@ const DAEMON_MS_WHY = "The daemon's render time (X-Render-Ms), summed over the f
     "on one worker, so this is the frame's cost on one core, whatever waited in the queue or rendered beside it. " +
     'Comparable between trees and panes.';
 const WALL_MS_WHY = 'What the browser waited, from the first request of the frame to its last answer: the daemon renders ' +
-    'strips side by side on its workers, and in split view shares them between the panes (taking their strips in turn).';
+    'strips side by side on its workers, and in split view shares them between the panes (taking their strips in turn). ' +
+    "A heat frame's scale, measured at 1 spp before it, is not counted.";
 
 /** The frame and tree statistics of every pane, one column each. */
 export function renderStats(el, app) {
@@ -138,6 +139,9 @@ function legendRow(panes, s, title) {
       </div>`;
 }
 
+// the bottom of the scale: no ray costs 0 in a BVH, whose root every ray visits (API.md, POST /api/ray)
+const BLUE = 'Blue: 0 and next to it. A ray that misses the model\'s bounds costs 0 in a k-d tree, 1 node step in a BVH (its root).';
+
 /** Heat legend: the renderer's colour ramp with numbers from X-Heat-Scale; one bar for split panes sharing a scale. */
 export function renderLegend(el, bars, app) {
     const panes = app.panes.filter((p) => p.shown && p.shown.req.mode === 'heat');
@@ -155,11 +159,42 @@ export function renderLegend(el, bars, app) {
     if (shared) {
         bars.innerHTML = legendRow(panes, scale, `Shared by both panes: ${panes.map(name).join(' and ')}`) +
             '<p class="muted small">One scale for both panes, the larger of their frames\' 99th percentiles (at 1 spp), so a colour is the same cost in each. ' +
-            'White: at or above it. Blue: rays that cost nothing.</p>';
+            `White: at or above it. ${BLUE}</p>`;
         return;
     }
     bars.innerHTML = panes.map((p) => legendRow([p], p.shown.heatScale, app.panes.length > 1 || p.frameIsStale() ? name(p) : '')).join('') +
-        '<p class="muted small">White: at or above the scale (the frame\'s 99th percentile). Blue: rays that cost nothing.</p>';
+        `<p class="muted small">White: at or above the scale (the frame's 99th percentile). ${BLUE}</p>`;
+}
+
+/** "pixel (320, 240) of 640×480, BVH sah": where an inspected ray was asked for. */
+const rayWhere = (r) => `pixel (${r.req.x}, ${r.req.y}) of ${r.req.width}×${r.req.height}, ${esc(treeLabel(r.req))}`;
+
+/** "3 node steps + 14 triangle tests": a ray's counts in words. */
+const rayCost = (counts) => `${fmt(counts.nodes)} node step${counts.nodes === 1 ? '' : 's'} + ` +
+    `${fmt(counts.tris)} triangle test${counts.tris === 1 ? '' : 's'}`;
+
+/**
+ * The inspected ray in one line under the frame, where the click was: the
+ * ray inspector's card is below the fold on a laptop and far down on a phone.
+ * Its button takes the reader to the card (onDetails).
+ */
+export function renderRaySummary(el, app, onDetails) {
+    const r = app.rayInspect;
+    el.hidden = !r;
+    if (!r) { el.innerHTML = ''; return; }
+    const where = rayWhere(r);
+    let text;
+    if (r.pending) text = `<span class="muted">Tracing the ray of ${where}…</span>`;
+    else if (r.error) text = `${where}: <span class="error">${esc(r.error.words || r.error.message)}</span>`;
+    else {
+        const d = r.data, hit = d.hit;
+        text = `${where}: ${hit ? `hits triangle ${fmt(hit.triangle)} at t ${fmt(hit.t, 4)}` : 'misses the model'}` +
+            ` · ${rayCost(d.counts || {})}`;
+    }
+    el.innerHTML = `<span class="ray-summary-text">${text}</span>` +
+        (r.pending ? '' : ' <button type="button" class="link" id="ray-details">Details in the ray inspector</button>');
+    const details = el.querySelector('#ray-details');
+    if (details) details.addEventListener('click', onDetails);
 }
 
 /** The inspected ray: hit, counts, heat at the pixel, and every step in visiting order. */
@@ -169,7 +204,7 @@ export function renderRay(el, app) {
         el.innerHTML = '<p class="muted">Click a pixel of the frame to trace its primary ray through the tree.</p>';
         return;
     }
-    const where = `pixel (${r.req.x}, ${r.req.y}) of ${r.req.width}×${r.req.height}, ${esc(treeLabel(r.req))}`;
+    const where = rayWhere(r);
     if (r.pending) {
         el.innerHTML = `<p class="muted">Tracing the ray through ${where}…</p>`;
         return;

@@ -102,9 +102,10 @@ export class Pane {
     makeDom() {
         const el = document.createElement('div');
         el.className = 'pane';
+        // the frame is an application, not an image, to assistive technology: it takes arrow keys, +/- and Enter itself
         el.innerHTML = `
           <div class="pane-title"><strong class="tree-name"></strong><span class="frame-info"></span></div>
-          <div class="frame" id="frame-${this.index}" tabindex="0" role="img" aria-describedby="hint">
+          <div class="frame" id="frame-${this.index}" tabindex="0" role="application" aria-describedby="hint">
             <canvas class="image" width="640" height="480"></canvas>
             <canvas class="overlay" width="640" height="480" aria-hidden="true"></canvas>
             <span class="badge building" hidden></span>
@@ -378,8 +379,9 @@ export class Pane {
      * Asks for the frame's regions (null: the whole frame, scaled to the
      * canvas) through the app's slots, and draws each as it arrives; the
      * canvas takes the frame's size and aspect with the first. Resolves to
-     * the frame's totals: wallMs, from the first request to the last answer
-     * (what the browser waited, queueing included); daemonMs, the daemon's
+     * the frame's totals: wallMs, from the first request of the frame's
+     * regions to the last answer (what the browser waited, queueing included;
+     * not the heat scale's renders before them); daemonMs, the daemon's
      * render times (X-Render-Ms) summed over the requests: each renders on
      * one worker, so this is the frame's cost however its strips were queued
      * or spread; the rays; the PNG of a whole frame. A heat frame in strips
@@ -390,7 +392,6 @@ export class Pane {
     async fetchFrame(req, regions, flight) {
         const [W, H] = this.app.state.res;
         const { signal } = flight.controller;
-        const start = performance.now();
         let heatScale = null;
         const shared = this.app.panes.length > 1 && !flight.quick;
         if (req.mode === 'heat' && (regions[0] || shared) && !req.heat_scale) {
@@ -398,6 +399,8 @@ export class Pane {
             heatScale = await this.app.heatScale(views, signal);
             req = { ...req, heat_scale: heatScale };
         }
+        // the clock starts after the scale's renders: not this frame's (in split view both panes' would count in each)
+        const start = performance.now();
         let done = 0;
         const part = async (region, i) => {
             const body = region ? { ...req, region, stream: `${this.stream}/${i}` } : { ...req, stream: this.stream };
