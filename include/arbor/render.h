@@ -179,6 +179,11 @@ void arbor_frame_cancel(arbor_frame *f);
 const arbor_frame_result *arbor_frame_wait(arbor_frame *f);
 /* The result; final only once done was called (or wait returned). */
 const arbor_frame_result *arbor_frame_result_of(const arbor_frame *f);
+/* Heat mode: the cost of each pixel of the image (the mean over its samples
+ * of nodes visited + triangles tested), width * height, rows top to bottom,
+ * that its colours were made from; NULL in other modes. Owned by the frame;
+ * final once done was called. */
+const float *arbor_frame_heat_costs(const arbor_frame *f);
 void arbor_frame_release(arbor_frame *f);
 
 /* Submits and waits: the frame (release it) or NULL with e filled. */

@@ -748,6 +748,11 @@ const arbor_frame_result *arbor_frame_result_of(const arbor_frame *f)
     return &f->result;
 }
 
+const float *arbor_frame_heat_costs(const arbor_frame *f)
+{
+    return f->heat;
+}
+
 void arbor_frame_release(arbor_frame *f)
 {
     if (f != NULL)

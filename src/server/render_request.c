@@ -242,9 +242,13 @@ static bool read_named(const cJSON *v, render_spec *s, arbor_err *e)
         if (strcmp(n, "mode") == 0 && !arbor_render_mode_parse(word, &s->mode))
             return arbor_fail(e, ARBOR_ERR_INVALID, "unknown mode '%s' (shaded, normals, depth, ao, heat)", word);
         if (strcmp(n, "format") == 0) {
-            if (strcmp(word, "json") != 0 && strcmp(word, "png") != 0)
-                return arbor_fail(e, ARBOR_ERR_INVALID, "unknown format '%s' (png, json)", word);
-            s->json = strcmp(word, "json") == 0;
+            static const char *const formats[] = {[RENDER_PNG] = "png", [RENDER_JSON] = "json", [RENDER_COSTS] = "costs"};
+            size_t i = 0;
+            while (i < COUNT(formats) && strcmp(word, formats[i]) != 0)
+                i++;
+            if (i == COUNT(formats))
+                return arbor_fail(e, ARBOR_ERR_INVALID, "unknown format '%s' (png, json, costs)", word);
+            s->format = (render_format)i;
         }
         return true;
     }
@@ -289,6 +293,8 @@ bool render_spec_from_json(const cJSON *o, bool ray, render_spec *s, arbor_err *
     }
     if (s->model[0] == '\0')
         return arbor_fail(e, ARBOR_ERR_INVALID, "model is required");
+    if (s->format == RENDER_COSTS && s->mode != ARBOR_MODE_HEAT)
+        return arbor_fail(e, ARBOR_ERR_INVALID, "format costs needs mode heat, not %s", arbor_render_mode_name(s->mode));
     if (ray && (s->x < 0 || s->y < 0))
         return arbor_fail(e, ARBOR_ERR_INVALID, "x and y (the pixel) are required");
     if (ray && (s->x >= s->width || s->y >= s->height))

@@ -22,6 +22,10 @@
 
 typedef enum { CAMERA_PROTOCOL, CAMERA_ORBIT, CAMERA_LOOK_AT } camera_kind;
 
+/* What a frame is answered as: the PNG, its statistics as JSON, or (heat
+ * mode only) each pixel's cost as little-endian float32, rows top to bottom. */
+typedef enum { RENDER_PNG, RENDER_JSON, RENDER_COSTS } render_format;
+
 typedef struct {
     char model[ARBOR_MODEL_NAME_MAX + 1];
     arbor_accel_kind kind;
@@ -35,7 +39,7 @@ typedef struct {
     camera_kind camera;
     float yaw, pitch, distance, fov;
     arbor_vec3 eye, target, up;
-    bool json;                           /* format: json */
+    render_format format;
     char stream[RENDER_STREAM_MAX + 1];  /* "" when none */
     int x, y;                            /* the pixel, for a ray request */
 } render_spec;

@@ -16,6 +16,7 @@
  * render_req is answered exactly once: `answered` is set under the lock by
  * whoever answers.
  */
+#include <assert.h>
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -177,6 +178,31 @@ static void reply_frame_json(render_req *rr, const arbor_frame_result *res, doub
     http_reply_json(rr->http, 200, o);
 }
 
+/* Heat mode's costs as the bytes of little-endian float32s, whatever the
+ * host's byte order: a browser reads them with a DataView. */
+static void reply_frame_costs(render_req *rr, const arbor_frame_result *res)
+{
+    const float *costs = arbor_frame_heat_costs(rr->frame);
+    size_t n = (size_t)res->width * (size_t)res->height;
+    uint8_t *bytes = malloc(n * 4);
+    assert(costs != NULL); /* format costs is refused outside heat mode */
+    if (bytes == NULL) {
+        arbor_err err;
+        arbor_fail(&err, ARBOR_ERR_NOMEM, "out of memory for the %zu costs of a %dx%d frame", n, res->width,
+                   res->height);
+        http_reply_err(rr->http, &err);
+        return;
+    }
+    for (size_t i = 0; i < n; i++) {
+        uint32_t u;
+        memcpy(&u, &costs[i], sizeof u);
+        for (int b = 0; b < 4; b++)
+            bytes[4 * i + (size_t)b] = (uint8_t)(u >> (8 * b));
+    }
+    http_reply_buffer(rr->http, 200, "application/octet-stream", bytes, n * 4);
+    http_reply_header(rr->http, "Cache-Control", "no-store");
+}
+
 static void add_number_header(http_req *r, const char *name, const char *fmt, double v)
 {
     char text[64];
@@ -192,8 +218,10 @@ static void reply_frame(render_req *rr, const arbor_frame_result *res)
     double encode_ms = 0.0;
     if (queue_ms < 0.0)
         queue_ms = 0.0;
-    if (rr->spec.json) {
+    if (rr->spec.format == RENDER_JSON) {
         reply_frame_json(rr, res, queue_ms);
+    } else if (rr->spec.format == RENDER_COSTS) {
+        reply_frame_costs(rr, res);
     } else {
         uint8_t *png = NULL;
         size_t len = 0;

@@ -3,6 +3,7 @@ import json
 import math
 import os
 import re
+import struct
 import subprocess
 import time
 
@@ -405,6 +406,49 @@ def test_render_format_json():
           "heat mode format=json: heat_scale %r heat_max %r" % (h["heat_scale"], h["heat_max"]))
     g = expect_json(d.get("/api/render?model=cornell&width=40&height=30&spp=2&format=json"))
     eq(g["rays"], j["rays"], "GET format=json rays vs POST")
+
+
+def _costs(r, w, h):
+    """The float32 costs of a format=costs answer, checked for its type and length."""
+    expect_ok(r)
+    eq(r.header("Content-Type"), "application/octet-stream", "format=costs content type")
+    eq(len(r.body), 4 * w * h, "format=costs bytes for %dx%d" % (w, h))
+    return struct.unpack("<%df" % (w * h), r.body)
+
+
+@test
+def test_render_format_costs():
+    """A heat frame's per-pixel costs: each pixel's is its ray's own count (POST /api/ray, a traversal with a
+    visitor), their mean and max are the JSON statistics', a region's are the full frame's there, GET = POST."""
+    d = main_daemon()
+    w, h = 48, 36
+    for model, accel in (("menger", "kd"), ("menger", "bvh"), ("sphere", "bvh")):
+        body = {"model": model, "accel": accel, "mode": "heat", "width": w, "height": h,
+                "camera": {"yaw": 35, "pitch": 25, "distance": 1.3, "fov": 50}}
+        costs = _costs(d.post("/api/render", dict(body, format="costs")), w, h)
+        stats = expect_json(d.post("/api/render", dict(body, format="json")))
+        check(abs(sum(costs) / len(costs) - stats["heat_mean"]) <= 1e-6 * stats["heat_mean"],
+              "%s %s: mean cost %r, heat_mean %r" % (model, accel, sum(costs) / len(costs), stats["heat_mean"]))
+        eq(max(costs), stats["heat_max"], "%s %s: max cost vs heat_max" % (model, accel))
+        for x, y in ((0, 0), (24, 18), (10, 30), (40, 5), (31, 22), (47, 35)):
+            ray = expect_json(d.post("/api/ray", {k: body[k] for k in ("model", "accel", "camera", "width", "height")}
+                                     | {"x": x, "y": y}))
+            eq(costs[y * w + x], ray["counts"]["nodes"] + ray["counts"]["tris"],
+               "%s %s pixel (%d,%d): cost vs its ray's counts %r" % (model, accel, x, y, ray["counts"]))
+        region = _costs(d.post("/api/render", dict(body, format="costs", region={"x": 8, "y": 4, "w": 20, "h": 10})), 20, 10)
+        eq(list(region), [costs[(4 + j) * w + 8 + i] for j in range(10) for i in range(20)],
+           "%s %s: a region's costs vs the full frame's" % (model, accel))
+    g = d.get("/api/render?model=menger&accel=bvh&mode=heat&width=%d&height=%d&yaw=35&pitch=25&distance=1.3&fov=50"
+              "&format=costs" % (w, h))
+    p = d.post("/api/render", {"model": "menger", "accel": "bvh", "mode": "heat", "width": w, "height": h,
+                               "camera": {"yaw": 35, "pitch": 25, "distance": 1.3, "fov": 50}, "format": "costs"})
+    eq(_costs(g, w, h), _costs(p, w, h), "GET vs POST costs")
+    # with samples, a pixel's cost is the mean over them: the frame's mean is heat_mean still
+    aa = {"model": "menger", "mode": "heat", "width": 24, "height": 18, "spp": 4}
+    costs = _costs(d.post("/api/render", dict(aa, format="costs")), 24, 18)
+    stats = expect_json(d.post("/api/render", dict(aa, format="json")))
+    check(any(c != int(c) for c in costs), "no pixel at 4 spp has a fractional mean cost")
+    check(abs(sum(costs) / len(costs) - stats["heat_mean"]) <= 1e-6 * stats["heat_mean"], "4 spp: mean cost vs heat_mean")
 
 
 @test

@@ -107,6 +107,8 @@ CASES = [
     ("background_over_1", "main", "POST", "/api/render", R(background=[2, 0, 0]), 400, "bad_request", "background"),
     ("heat_scale_0", "main", "POST", "/api/render", R(mode="heat", heat_scale=0), 400, "bad_request", "heat_scale"),
     ("format_gif", "main", "POST", "/api/render", R(format="gif"), 400, "bad_request", "format"),
+    ("format_costs_shaded", "main", "POST", "/api/render", R(format="costs"), 400, "bad_request",
+     "format costs needs mode heat, not shaded"),
     ("stream_empty", "main", "POST", "/api/render", R(stream=""), 400, "bad_request", "stream"),
     ("stream_65_chars", "main", "POST", "/api/render", R(stream="s" * 65), 400, "bad_request", "stream"),
     ("fov_0", "main", "POST", "/api/render", R(camera=cam(fov=0)), 400, "bad_request", "fov"),

@@ -874,6 +874,21 @@ static void test_heat_scale_and_counts(void)
     TEST_ASSERT_TRUE(r->heat_scale <= r->heat_max);
     /* the mean cost per pixel is the mean per primary ray at spp 1 */
     TEST_ASSERT_FLOAT_WITHIN(1e-3 * r->heat_mean, r->mean_nodes + r->mean_tris, r->heat_mean);
+    /* the costs the colours came from: whole numbers at spp 1, with the frame's mean and max */
+    const float *costs = arbor_frame_heat_costs(f);
+    TEST_ASSERT_NOT_NULL(costs);
+    double sum = 0.0, max = 0.0;
+    for (int i = 0; i < r->width * r->height; i++) {
+        TEST_ASSERT_EQUAL_FLOAT(floorf(costs[i]), costs[i]);
+        sum += costs[i];
+        max = fmax(max, costs[i]);
+    }
+    TEST_ASSERT_FLOAT_WITHIN(1e-9 * r->heat_mean, r->heat_mean, sum / (r->width * r->height));
+    TEST_ASSERT_EQUAL_DOUBLE(r->heat_max, max);
+    arbor_frame_release(f);
+    soup_params(&p, &m, ARBOR_MODE_SHADED, 1);
+    f = render_ok(pool4, a, &p);
+    TEST_ASSERT_NULL(arbor_frame_heat_costs(f));
     arbor_frame_release(f);
     arbor_accel_free(a);
     arbor_mesh_free(&m);

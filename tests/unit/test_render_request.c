@@ -279,7 +279,7 @@ static void test_defaults_and_names(void)
     TEST_ASSERT_EQUAL_INT(480, s.height);
     TEST_ASSERT_EQUAL_INT(1, s.spp);
     TEST_ASSERT_EQUAL_INT(CAMERA_PROTOCOL, s.camera);
-    TEST_ASSERT_FALSE(s.json);
+    TEST_ASSERT_EQUAL_INT(RENDER_PNG, s.format);
     TEST_ASSERT_EQUAL_STRING("", s.stream);
 
     s = accept("\"accel\":\"kd\",\"builder\":\"median\",\"mode\":\"ao\",\"format\":\"json\",\"stream\":\"tab-1\"",
@@ -287,13 +287,17 @@ static void test_defaults_and_names(void)
     TEST_ASSERT_EQUAL_INT(ARBOR_ACCEL_KD, s.kind);
     TEST_ASSERT_EQUAL_INT(ARBOR_BUILD_MEDIAN, s.builder);
     TEST_ASSERT_EQUAL_INT(ARBOR_MODE_AO, s.mode);
-    TEST_ASSERT_TRUE(s.json);
+    TEST_ASSERT_EQUAL_INT(RENDER_JSON, s.format);
     TEST_ASSERT_EQUAL_STRING("tab-1", s.stream);
+    TEST_ASSERT_EQUAL_INT(RENDER_COSTS, accept("\"mode\":\"heat\",\"format\":\"costs\"", false).format);
+    TEST_ASSERT_EQUAL_INT(RENDER_PNG, accept("\"format\":\"png\"", false).format);
 
     refuse("\"accel\":\"octree\"", false, "octree");
     refuse("\"builder\":\"hlbvh\"", false, "hlbvh");
     refuse("\"mode\":\"phong\"", false, "phong");
     refuse("\"format\":\"jpg\"", false, "jpg");
+    refuse("\"format\":\"costs\"", false, "format costs needs mode heat, not shaded");
+    refuse("\"format\":\"costs\",\"mode\":\"depth\"", false, "format costs needs mode heat, not depth");
     refuse("\"stream\":\"\"", false, "stream");
     char stream[128];
     snprintf(stream, sizeof stream, "\"stream\":\"%065d\"", 0);
