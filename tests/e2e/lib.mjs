@@ -144,15 +144,16 @@ export async function screenshot(page, name) {
     await page.screenshot({ path: path.join(shotDir, `${name}.png`), fullPage: true });
 }
 
-/** Every request body to /api/render (and /api/ray) the page sends, in order. */
+/** Every request body to /api/render (frames; costs apart) and /api/ray the page sends, in order. */
 export function recordRequests(page) {
-    const renders = [], rays = [], responses = [];
+    const renders = [], rays = [], responses = [], costs = [];
     let inflight = 0, maxInflight = 0;
     page.on('request', (r) => {
         const u = new URL(r.url());
         if (u.pathname === '/api/render' && r.method() === 'POST') {
             const body = JSON.parse(r.postData() || '{}');
-            if (body.format !== 'json') {
+            if (body.format === 'costs') costs.push(body);
+            else if (body.format !== 'json') {
                 renders.push(body);
                 inflight++;
                 maxInflight = Math.max(maxInflight, inflight);
@@ -170,7 +171,7 @@ export function recordRequests(page) {
             responses.push({ status: res.status(), headers: res.headers(), body: res.request().postData() });
         }
     });
-    return { renders, rays, responses, maxInflight: () => maxInflight };
+    return { renders, rays, responses, costs, maxInflight: () => maxInflight };
 }
 
 /** Waits until pane `index` shows a full (not quick) frame; returns its request camera. */

@@ -147,14 +147,16 @@ export function treeBoxes(model, accel, builder, depth, kind, init = {}) {
 
 export const traceRay = (req) => postJSON(`Tracing the ray through pixel (${req.x}, ${req.y})`, '/api/ray', req);
 
+const postRender = (what, req, init) => call(what, '/api/render', {
+    method: 'POST',
+    headers: { 'Content-Type': 'application/json' },
+    body: JSON.stringify(req),
+    ...init,
+});
+
 /** One frame: {blob, headers info}. init.signal aborts it. */
 export async function renderFrame(req, init = {}) {
-    const res = await call('Rendering the frame', '/api/render', {
-        method: 'POST',
-        headers: { 'Content-Type': 'application/json' },
-        body: JSON.stringify(req),
-        ...init,
-    });
+    const res = await postRender('Rendering the frame', req, init);
     const blob = await res.blob();
     const num = (h) => {
         const v = res.headers.get(h);
@@ -168,6 +170,15 @@ export async function renderFrame(req, init = {}) {
         heatScale: num('X-Heat-Scale'),
         timing: res.headers.get('Server-Timing') || '',
     };
+}
+
+/** A heat frame's cost per pixel (format=costs: little-endian float32s, rows top to bottom) as a Float32Array. */
+export async function renderCosts(req, init = {}) {
+    const res = await postRender(`Measuring the ${req.accel} ${req.builder} costs`, { ...req, mode: 'heat', format: 'costs' }, init);
+    const bytes = new DataView(await res.arrayBuffer());
+    const costs = new Float32Array(bytes.byteLength / 4);
+    for (let i = 0; i < costs.length; i++) costs[i] = bytes.getFloat32(4 * i, true);
+    return costs;
 }
 
 /** A frame's statistics (format=json); init.signal aborts it. */

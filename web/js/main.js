@@ -9,6 +9,7 @@ import { attachControls, MIN_DISTANCE, MAX_DISTANCE } from './controls.js';
 import { renderStats, renderLegend, renderRay, renderRaySummary, triangles, treeLabel } from './panels.js';
 import { Compare } from './compare.js';
 import { Uploader } from './upload.js';
+import { CostDiff } from './diff.js';
 import { Slots } from './slots.js';
 import { savePanes } from './save.js';
 import { renderKey, treeDepths, rayParts } from './overlay.js';
@@ -41,7 +42,7 @@ function defaultState() {
         res: [640, 480],
         view: { ...protocolOrbit(), target: null },
         boxes: { on: false, depth: 0, all: false, leaves: false },
-        split: { on: false, accel: 'kd', builder: 'sah' },
+        split: { on: false, accel: 'kd', builder: 'sah', diff: false },
         tab: 'view',
     };
 }
@@ -70,7 +71,7 @@ export function stateFromURL(search) {
         s.boxes.leaves = q.get('boxes') === 'leaves';
     }
     const split = /^(bvh|kd):(spatial|median|mean|sah)$/.exec(q.get('split') || '');
-    if (split) s.split = { on: true, accel: split[1], builder: split[2] };
+    if (split) s.split = { on: true, accel: split[1], builder: split[2], diff: q.get('diff') === '1' };
     if (q.get('tab') === 'compare') s.tab = 'compare';
     return s;
 }
@@ -96,6 +97,7 @@ export function stateToURL(s) {
         if (s.boxes.leaves) q.set('boxes', 'leaves');
     }
     if (s.split.on) q.set('split', `${s.split.accel}:${s.split.builder}`);
+    if (s.split.on && s.split.diff) q.set('diff', '1');
     if (s.tab === 'compare') q.set('tab', 'compare');
     return `?${q.toString()}`;
 }
@@ -165,6 +167,7 @@ class App {
         this.bindControls();
         this.compare = new Compare(this);
         this.uploader = new Uploader(this);
+        this.costDiff = new CostDiff(this);
         this.rebuildPanes();
         this.syncControls();
         this.showTab(this.state.tab);
@@ -351,6 +354,10 @@ class App {
             this.rebuildPanes();
             this.changed({ boxes: true });
         });
+        $('diff-on').addEventListener('change', (e) => {
+            s.split.diff = e.target.checked;
+            this.changed({ noFrame: true });
+        });
         for (const [id, key] of [['accel2', 'accel'], ['builder2', 'builder']]) {
             $(id).addEventListener('change', (e) => {
                 s.split[key] = e.target.value;
@@ -408,7 +415,8 @@ class App {
         $('split-on').checked = s.split.on;
         $('accel2').value = s.split.accel;
         $('builder2').value = s.split.builder;
-        $('accel2').disabled = $('builder2').disabled = !s.split.on;
+        $('accel2').disabled = $('builder2').disabled = $('diff-on').disabled = !s.split.on;
+        $('diff-on').checked = s.split.diff;
     }
 
     showTab(tab) {
@@ -553,6 +561,7 @@ class App {
             : 'Waiting for the full frame of this view';
         for (const p of this.panes) p.drawOverlay();
         this.renderOverlayKey();
+        this.costDiff.update();
     }
 
     /** The key to what the panes' overlays draw: the depths of their boxes (in split view, of both) and the ray's parts. */
