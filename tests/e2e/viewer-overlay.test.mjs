@@ -2,7 +2,7 @@
 // orbits a model and looks at a tree's boxes and a ray's path sees them: the
 // boxes where the renderer's camera puts them, a colour per depth that the
 // key under the frame names, standing out from the frame's background in
-// either colour scheme; a ray's path in colours apart from every depth's,
+// either colour scheme, cased over a heat frame; a ray's path in colours apart from every depth's,
 // the ray a line once the view turns; a sharp overlay with a ring of one size
 // at two device pixels per CSS pixel; no boxes stretched over the strips of a
 // new resolution; a key that follows what is drawn; and Save PNG with what
@@ -186,6 +186,36 @@ test("the tree's boxes stand out from the frame's background in the light and th
             assert.deepEqual(errors, []);
         });
     }
+});
+
+test("over a heat frame, whose colours are the tree's, the boxes have a dark casing; over other frames they do not", T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        // the overlay's near-black pixels: a casing's, as no depth's colour is that dark
+        const dark = () => page.evaluate(() => {
+            const o = document.querySelector('canvas.overlay');
+            const px = o.getContext('2d').getImageData(0, 0, o.width, o.height).data;
+            let drawn = 0, black = 0;
+            for (let i = 0; i < px.length; i += 4) {
+                if (px[i + 3] < 150) continue;
+                drawn++;
+                if (px[i] + px[i + 1] + px[i + 2] < 60) black++;
+            }
+            return { drawn, black };
+        });
+        await page.goto(`${d.base}/?model=sphere&accel=kd&builder=sah&spp=1&depth=3&mode=heat`);
+        await boxesShown(page, 3);
+        await page.waitForFunction(() => window.arbor.panes[0].shown.req.mode === 'heat');
+        await afterPaint(page);
+        await screenshot(page, 'overlay-boxes-heat');
+        const heat = await dark();
+        assert.ok(heat.drawn > 1000 && heat.black > heat.drawn / 8, `over the heat frame: ${JSON.stringify(heat)}`);
+        await page.selectOption('#mode', 'normals');
+        await page.waitForFunction(() => window.arbor.panes[0].shown?.req.mode === 'normals' && !window.arbor.panes[0].shown.quick, null, { timeout: 60000 });
+        await afterPaint(page);
+        const normals = await dark();
+        assert.ok(normals.drawn > 1000 && normals.black < normals.drawn / 50, `over the normals frame: ${JSON.stringify(normals)}`);
+        assert.deepEqual(errors, []);
+    });
 });
 
 test('once the view turns, the inspected ray is a line from the eye to its hit', T, async () => {

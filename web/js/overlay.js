@@ -150,23 +150,28 @@ export function treeDepths(data) {
  * Draws a boxes answer's boxes, a colour per depth, the deepest first so that
  * the few large boxes of the top levels stay visible over the many small
  * ones; fainter under a ray's path, which is about the boxes it visited.
+ * Over a heat frame, whose own blues, cyans and greens are the tree's
+ * colours, a box has a dark casing, as the path's lines do (hairlines, past
+ * WIDE_BOXES boxes, go without: they must stay fast).
  */
-function drawTree(ctx, v, data, { dpr, light, underRay }) {
+function drawTree(ctx, v, data, { dpr, light, heat, underRay }) {
     const list = data.boxes || [];
     const depths = treeDepths(data).slice().reverse();
     const alpha = (list.length > 2000 ? 0.55 : list.length > 200 ? 0.75 : 0.95) * (underRay ? 0.4 : 1);
-    const width = list.length > WIDE_BOXES ? 1 : Math.max(1, dpr);
-    const layers = depths.map((d) => ({ colour: depthColour(d, light), alpha, width: d === 0 ? 2 * dpr : width }));
+    const wide = list.length <= WIDE_BOXES;
+    const width = wide ? Math.max(1, dpr) : 1, casing = heat && wide ? 2 * dpr : 0;
+    const layers = depths.map((d) => ({ colour: depthColour(d, light), alpha, width: d === 0 ? 2 * dpr : width, casing }));
     const layerOf = new Map(depths.map((d, i) => [d, i]));
     strokeLayers(ctx, layers, boxPaths(v, list, layers.length, (b) => layerOf.get(b.depth ?? data.depth)));
 }
 
 /**
  * Draws a pane's overlay content ({boxes, ray}: Pane.overlayContent) through
- * view v: on the page's overlay canvas, and over a saved frame (save.js).
+ * view v: on the page's overlay canvas, and over a saved frame (save.js);
+ * heat: the frame is a heat frame.
  */
-export function drawContent(ctx, v, { boxes, ray }, { dpr, light, bounds }) {
-    if (boxes) drawTree(ctx, v, boxes.data, { dpr, light, underRay: !!ray });
+export function drawContent(ctx, v, { boxes, ray }, { dpr, light, heat, bounds }) {
+    if (boxes) drawTree(ctx, v, boxes.data, { dpr, light, heat, underRay: !!ray });
     if (ray) drawRay(ctx, v, ray, bounds, dpr);
 }
 

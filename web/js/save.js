@@ -32,7 +32,7 @@ async function frameWithOverlay(p, light) {
     ctx.drawImage(bitmap, 0, 0);
     bitmap.close();
     drawContent(ctx, canvasView(frame.cam, canvas.width, canvas.height), { boxes, ray },
-        { dpr: 1, light, bounds: p.app.model().bounds });
+        { dpr: 1, light, heat: frame.req.mode === 'heat', bounds: p.app.model().bounds });
     return toPNG(canvas);
 }
 

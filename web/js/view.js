@@ -594,8 +594,8 @@ export class Pane {
     /**
      * Redraws boxes and the inspected ray with the camera of the frame shown
      * (from drawPanels: once per animation frame at most), unless they, the
-     * frame's camera, the canvas's size and the colour scheme are what the
-     * overlay shows already. The canvas has a pixel per device pixel of its
+     * frame's camera and mode, the canvas's size and the colour scheme are
+     * what the overlay shows already. The canvas has a pixel per device pixel of its
      * box on the page (inside the frame's border), so lines are sharp.
      */
     drawOverlay() {
@@ -605,7 +605,7 @@ export class Pane {
         const w = Math.max(1, Math.round(rect.width * dpr)), h = Math.max(1, Math.round(rect.height * dpr));
         const { frame, boxes, ray } = this.overlayContent();
         const light = !this.app.dark.matches;
-        const camera = JSON.stringify([w, h, dpr, light, frame && [frame.cam.width, frame.cam.height, frame.req.camera]]);
+        const camera = JSON.stringify([w, h, dpr, light, frame && [frame.cam.width, frame.cam.height, frame.req.camera, frame.req.mode]]);
         const drawn = this.overlayDrawn;
         if (drawn && drawn.camera === camera && drawn.boxes === boxes && drawn.ray === ray) return;
         this.overlayDrawn = { camera, boxes, ray };
@@ -613,7 +613,8 @@ export class Pane {
         const ctx = o.getContext('2d');
         ctx.clearRect(0, 0, w, h);
         if (!frame) return;
-        drawContent(ctx, canvasView(frame.cam, w, h), { boxes, ray }, { dpr, light, bounds: this.app.model().bounds });
+        drawContent(ctx, canvasView(frame.cam, w, h), { boxes, ray },
+            { dpr, light, heat: frame.req.mode === 'heat', bounds: this.app.model().bounds });
     }
 
     /** Frame pixel under a client point, or null outside. */
