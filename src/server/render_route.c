@@ -183,9 +183,9 @@ static void reply_frame_json(render_req *rr, const arbor_frame_result *res, doub
 static void reply_frame_costs(render_req *rr, const arbor_frame_result *res)
 {
     const float *costs = arbor_frame_heat_costs(rr->frame);
+    assert(costs != NULL); /* format costs is refused outside heat mode */
     size_t n = (size_t)res->width * (size_t)res->height;
     uint8_t *bytes = malloc(n * 4);
-    assert(costs != NULL); /* format costs is refused outside heat mode */
     if (bytes == NULL) {
         arbor_err err;
         arbor_fail(&err, ARBOR_ERR_NOMEM, "out of memory for the %zu costs of a %dx%d frame", n, res->width,

@@ -32,7 +32,7 @@ function diffColour(d, scale) {
  * same pixels: means, the share of working pixels where b is less, the same,
  * more, and the scale's end (at least 1).
  */
-export function diffSummary(a, b) {
+function diffSummary(a, b) {
     let sumA = 0, sumB = 0, less = 0, same = 0, more = 0;
     const sizes = [];
     for (let i = 0; i < a.length; i++) {
