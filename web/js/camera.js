@@ -61,6 +61,31 @@ export function viewEyeTarget(bounds, view) {
 }
 
 /**
+ * The view turned about its eye to yaw and pitch (degrees), the fly camera's
+ * look: the eye stays where it is and the target swings round it at the
+ * view's distance, so that orbiting afterwards turns about a point ahead.
+ */
+export function lookFromEye(bounds, view, yaw, pitch) {
+    const { eye } = viewEyeTarget(bounds, view);
+    const p = clampPitch(pitch);
+    const reach = view.distance * boundsFrame(bounds).diagonal;
+    return { ...view, yaw, pitch: p, target: sub(eye, scale(orbitDirection(yaw, p), reach)) };
+}
+
+/**
+ * The view moved, eye and target together, by forward along the line of
+ * sight, right along the image's right and up along the world's up, each in
+ * units of the bounds' diagonal (so a step means the same on every model).
+ */
+export function moveView(bounds, view, forward, right, up) {
+    const { eye, target } = viewEyeTarget(bounds, view);
+    const basis = lookAt(eye, target, WORLD_UP, view.fov, 1, 1);
+    const { diagonal } = boundsFrame(bounds);
+    const by = add(add(scale(basis.forward, forward), scale(basis.right, right)), scale(WORLD_UP, up));
+    return { ...view, target: add(target, scale(by, diagonal)) };
+}
+
+/**
  * The camera field of a render request for this view: the orbit form while
  * the target is the centre (exactly the daemon's orbit camera), else look-at.
  */

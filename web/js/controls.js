@@ -2,13 +2,27 @@
 // (one finger) orbits, the wheel (two-finger pinch) zooms, right- or
 // shift-drag (two-finger drag) pans, double-click resets; a click without a
 // drag inspects the ray under it. Keyboard on a focused frame: arrows orbit,
-// shift+arrows pan, + and - zoom.
+// shift+arrows pan, + and - zoom. W A S D move the eye and target together
+// (Q and E down and up), to go inside a model such as sponza; with the fly
+// camera (state.fly) a drag, the arrows, the wheel and + - turn the view
+// about its eye and move it forward instead of orbiting and zooming.
 
-import { boundsFrame, clampPitch, lookAt, viewEyeTarget, add, scale, WORLD_UP } from './camera.js';
+import {
+    boundsFrame, clampPitch, lookAt, lookFromEye, moveView, viewEyeTarget, add, scale, WORLD_UP,
+} from './camera.js';
 
 const CLICK_SLOP = 4;        // px a press may move and still be a click
 const CLICK_DELAY = 260;     // ms to wait for a double-click before inspecting
 export const MIN_DISTANCE = 0.02, MAX_DISTANCE = 50;
+// a key press moves this many of the bounds' diagonals (Shift four times as far, Alt a quarter)
+const MOVE_STEP = 0.02;
+// what the keys at W A S D Q E on a US layout move along, [forward, right, up]: by position (e.code), so
+// that they keep their places on other layouts and with Alt (which turns e.key into other characters on a Mac)
+const MOVES = {
+    KeyW: [1, 0, 0], KeyS: [-1, 0, 0], KeyA: [0, -1, 0], KeyD: [0, 1, 0], KeyQ: [0, 0, -1], KeyE: [0, 0, 1],
+};
+
+const wrapYaw = (y) => ((y + 180) % 360 + 360) % 360 - 180;
 
 export function attachControls(app, frameEl, pane) {
     const pointers = new Map(); // id -> {x, y}
@@ -22,10 +36,39 @@ export function attachControls(app, frameEl, pane) {
     function orbit(dx, dy) {
         const h = size().height || 1;
         app.updateView((v) => {
-            v.yaw -= (360 * dx) / h;
+            v.yaw = wrapYaw(v.yaw - (360 * dx) / h);
             v.pitch = clampPitch(v.pitch + (360 * dy) / h);
-            v.yaw = ((v.yaw + 180) % 360 + 360) % 360 - 180;
         });
+    }
+
+    /** Turns the view about its eye by (yaw, pitch) degrees: positive yaw turns left, positive pitch down. */
+    function look(yaw, pitch) {
+        const model = app.model();
+        if (!model) return;
+        app.updateView((v) => Object.assign(v, lookFromEye(model.bounds, v, wrapYaw(v.yaw + yaw), v.pitch + pitch)));
+    }
+
+    /** A drag of (dx, dy) px: an orbit, or with the fly camera a look that keeps the scene under the pointer. */
+    function turn(dx, dy) {
+        if (!app.state.fly) return orbit(dx, dy);
+        const perPixel = app.state.view.fov / (size().height || 1);
+        look(dx * perPixel, -dy * perPixel);
+    }
+
+    function move(forward, right, up) {
+        const model = app.model();
+        if (!model) return;
+        app.updateView((v) => Object.assign(v, moveView(model.bounds, v, forward, right, up)));
+    }
+
+    /**
+     * The wheel, pinch and + -: closer by factor < 1. The fly camera moves
+     * forward instead, by five key steps per e-fold, so that a wheel notch
+     * (factor e^-0.15) goes three quarters of a step and + about as far.
+     */
+    function approach(factor) {
+        if (app.state.fly) move(-Math.log(factor) * MOVE_STEP * 5, 0, 0);
+        else zoom(factor);
     }
 
     function pan(dx, dy) {
@@ -78,7 +121,7 @@ export function attachControls(app, frameEl, pane) {
         p.y = e.clientY;
         if (mode === 'pinch' && pointers.size >= 2) {
             const now = pinchState();
-            zoom(pinch.dist / now.dist);
+            approach(pinch.dist / now.dist);
             pan(now.mid.x - pinch.mid.x, now.mid.y - pinch.mid.y);
             pinch = now;
             return;
@@ -88,11 +131,11 @@ export function attachControls(app, frameEl, pane) {
             // first real move: apply the whole offset since the press
             press.moved = true;
             const tx = e.clientX - press.x, ty = e.clientY - press.y;
-            if (mode === 'pan') pan(tx, ty); else orbit(tx, ty);
+            if (mode === 'pan') pan(tx, ty); else turn(tx, ty);
             return;
         }
         if (mode === 'pan') pan(dx, dy);
-        else if (mode === 'orbit') orbit(dx, dy);
+        else if (mode === 'orbit') turn(dx, dy);
     });
 
     function end(e) {
@@ -126,20 +169,29 @@ export function attachControls(app, frameEl, pane) {
         e.preventDefault();
         const unit = e.deltaMode === 1 ? 16 : e.deltaMode === 2 ? 400 : 1;
         const dy = Math.max(-200, Math.min(200, e.deltaY * unit));
-        zoom(Math.exp(dy * 0.0015));
+        approach(Math.exp(dy * 0.0015));
     }, { passive: false });
 
     frameEl.addEventListener('keydown', (e) => {
         const step = e.altKey ? 1 : 5;
         const px = (size().height || 400) * (step / 360);
+        // the fly camera's arrows turn the way they point: left looks left, up looks up
+        const arrow = (x, y) => (e.shiftKey ? pan(x * px * 4, y * px * 4) : app.state.fly ? look(-x * step, y * step) : orbit(x * px, y * px));
+        const along = MOVES[e.code];
+        if (along && !e.ctrlKey && !e.metaKey) {
+            const k = MOVE_STEP * (e.shiftKey ? 4 : e.altKey ? 0.25 : 1);
+            move(along[0] * k, along[1] * k, along[2] * k);
+            e.preventDefault();
+            return;
+        }
         let handled = true;
         switch (e.key) {
-            case 'ArrowLeft': e.shiftKey ? pan(-px * 4, 0) : orbit(-px, 0); break;
-            case 'ArrowRight': e.shiftKey ? pan(px * 4, 0) : orbit(px, 0); break;
-            case 'ArrowUp': e.shiftKey ? pan(0, -px * 4) : orbit(0, -px); break;
-            case 'ArrowDown': e.shiftKey ? pan(0, px * 4) : orbit(0, px); break;
-            case '+': case '=': zoom(1 / 1.15); break;
-            case '-': case '_': zoom(1.15); break;
+            case 'ArrowLeft': arrow(-1, 0); break;
+            case 'ArrowRight': arrow(1, 0); break;
+            case 'ArrowUp': arrow(0, -1); break;
+            case 'ArrowDown': arrow(0, 1); break;
+            case '+': case '=': approach(1 / 1.15); break;
+            case '-': case '_': approach(1.15); break;
             case 'Enter': case ' ': {
                 const r = size();
                 app.inspect(pane, r.left + r.width / 2, r.top + r.height / 2);

@@ -41,6 +41,7 @@ function defaultState() {
         spp: 4,
         res: [640, 480],
         view: { ...protocolOrbit(), target: null },
+        fly: false, // a drag turns the view about its eye (controls.js) rather than orbiting its target
         boxes: { on: false, depth: 0, all: false, leaves: false },
         split: { on: false, accel: 'kd', builder: 'sah', diff: false },
         tab: 'view',
@@ -64,6 +65,7 @@ export function stateFromURL(search) {
     if (num(q.get('fov')) >= 1 && num(q.get('fov')) <= 179) v.fov = num(q.get('fov'));
     const t = (q.get('target') || '').split(',').map(Number);
     if (t.length === 3 && t.every(Number.isFinite)) v.target = t;
+    s.fly = q.get('cam') === 'fly';
     if (q.has('depth') && Number.isInteger(num(q.get('depth'))) && num(q.get('depth')) >= 0) {
         s.boxes.on = true;
         s.boxes.depth = num(q.get('depth'));
@@ -91,6 +93,7 @@ export function stateToURL(s) {
     q.set('dist', r4(s.view.distance));
     q.set('fov', r4(s.view.fov));
     if (s.view.target) q.set('target', s.view.target.map((x) => String(Math.round(x * 1e6) / 1e6)).join(','));
+    if (s.fly) q.set('cam', 'fly');
     if (s.boxes.on) {
         q.set('depth', String(s.boxes.depth));
         if (s.boxes.all) q.set('boxes', 'all');
@@ -323,6 +326,12 @@ class App {
         $('fov').addEventListener('input', (e) => this.setFov(Number(e.target.value)));
         // the slider's ends are a drag away from the protocol's field of view, which Reset view keeps
         $('fov-default').addEventListener('click', () => this.setFov(protocolOrbit().fov));
+        for (const id of ['cam-orbit', 'cam-fly']) {
+            $(id).addEventListener('change', () => {
+                s.fly = $('cam-fly').checked;
+                this.changed({ noFrame: true });
+            });
+        }
         $('reset').addEventListener('click', () => this.resetView());
         $('save-png').addEventListener('click', () => this.savePNG());
         $('boxes-on').addEventListener('change', (e) => { s.boxes.on = e.target.checked; this.changed({ boxes: true }); });
@@ -404,6 +413,12 @@ class App {
         }
         $('res').value = res;
         this.showFov();
+        $('cam-orbit').checked = !s.fly;
+        $('cam-fly').checked = s.fly;
+        $('hint-drag').textContent = s.fly ? 'Drag to look around' : 'Drag to orbit';
+        $('hint-wheel').textContent = s.fly ? 'wheel or pinch to move forward' : 'wheel or pinch to zoom';
+        $('hint-arrows').textContent = s.fly ? 'arrow keys look' : 'arrow keys orbit';
+        $('hint-plus').textContent = s.fly ? 'move' : 'zoom';
         $('boxes-on').checked = s.boxes.on;
         const depth = $('depth');
         if (s.boxes.depth > Number(depth.max)) depth.max = String(s.boxes.depth);

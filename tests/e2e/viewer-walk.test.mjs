@@ -1,0 +1,141 @@
+// viewer-walk.test.mjs - moving the eye through a model: W A S D Q E carry
+// the eye and its target together by a fiftieth of the bounds' diagonal (Shift
+// four times, Alt a quarter), and the fly camera turns the view about its eye.
+// Each camera the daemon rendered is checked against positions worked out here
+// from the model's bounds and the orbit convention (camera.c), not by the
+// page's own camera code.
+
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { withViewer, screenshot, waitFullFrame } from './lib.mjs';
+
+const T = { timeout: 180000 };
+const STEP = 0.02; // diagonals a key press moves
+const TOL = 1e-4;  // requests round eye and target to 1e-6
+
+const add = (a, b) => a.map((x, i) => x + b[i]);
+const sub = (a, b) => a.map((x, i) => x - b[i]);
+const mul = (a, s) => a.map((x) => x * s);
+const dot = (a, b) => a.reduce((s, x, i) => s + x * b[i], 0);
+const norm = (a) => mul(a, 1 / Math.sqrt(dot(a, a)));
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const rad = (deg) => (deg * Math.PI) / 180;
+
+/** Eye and target of a request camera: look-at as it is, orbit about the bounds' centre (arbor_camera_orbit). */
+function eyeTarget(cam, bounds) {
+    if (cam.eye) return { eye: cam.eye, target: cam.target };
+    const centre = mul(add(bounds.min, bounds.max), 0.5), diag = Math.sqrt(dot(sub(bounds.max, bounds.min), sub(bounds.max, bounds.min)));
+    const y = rad(cam.yaw), p = rad(cam.pitch);
+    const dir = [Math.cos(p) * Math.sin(y), Math.sin(p), Math.cos(p) * Math.cos(y)];
+    return { eye: add(centre, mul(dir, cam.distance * diag)), target: centre };
+}
+
+/** Yaw and pitch (degrees) of the orbit convention whose eye looks from eye to target. */
+function yawPitch(eye, target) {
+    const d = norm(sub(eye, target));
+    return { yaw: Math.atan2(d[0], d[2]) * 180 / Math.PI, pitch: Math.asin(d[1]) * 180 / Math.PI };
+}
+
+const near = (a, b, tol = TOL) => a.every((x, i) => Math.abs(x - b[i]) <= tol);
+
+/** Waits until pane 0 shows a full frame rendered from eye and target (within TOL); returns that camera. */
+async function waitCamera(page, want) {
+    try {
+        await page.waitForFunction((w) => {
+            const c = document.querySelector('canvas.image[data-pane="0"]');
+            if (!c || c.dataset.frame !== 'full' || window.arbor.moving) return false;
+            const cam = JSON.parse(c.dataset.camera);
+            const close = (a, b) => a && a.every((x, i) => Math.abs(x - b[i]) <= w.tol);
+            return close(cam.eye, w.eye) && close(cam.target, w.target);
+        }, { ...want, tol: TOL }, { timeout: 30000 });
+    } catch (e) {
+        const shown = await page.$eval('canvas.image[data-pane="0"]', (c) => c.dataset.camera).catch(() => '?');
+        throw new Error(`no full frame from ${JSON.stringify(want)}; pane 0 shows ${shown}`);
+    }
+    return waitFullFrame(page);
+}
+
+async function boundsOf(base, name) {
+    const { models } = await fetch(`${base}/api/models`).then((r) => r.json());
+    return models.find((m) => m.name === name).bounds;
+}
+
+test('W A S D Q E move the eye and its target together, along the view, its right and the world up', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=cornell&spp=1`);
+        const cam0 = await waitFullFrame(page);
+        const bounds = await boundsOf(d.base, 'cornell');
+        const diag = Math.sqrt(dot(sub(bounds.max, bounds.min), sub(bounds.max, bounds.min)));
+        const { eye, target } = eyeTarget(cam0, bounds);
+        const forward = norm(sub(target, eye)), right = norm(cross(forward, [0, 1, 0]));
+
+        await page.locator('.frame').first().focus();
+        for (const key of ['KeyW', 'KeyW', 'KeyW', 'KeyD', 'Shift+KeyE', 'Alt+KeyA', 'KeyS']) await page.keyboard.press(key);
+        // forward 3 - 1 steps, right 1 - 1/4, up 4
+        const by = add(add(mul(forward, 2 * STEP), mul(right, 0.75 * STEP)), mul([0, 1, 0], 4 * STEP));
+        const want = { eye: add(eye, mul(by, diag)), target: add(target, mul(by, diag)) };
+        const cam = await waitCamera(page, want);
+        assert.deepEqual(cam.up, [0, 1, 0]);
+        assert.equal(cam.fov, cam0.fov);
+        // the orbit camera still orbits, now about the moved target
+        assert.match(page.url(), /[?&]target=/);
+        assert.doesNotMatch(page.url(), /[?&]cam=/);
+        assert.deepEqual(errors, []);
+    });
+});
+
+test('the fly camera turns about the eye: a drag, the arrows; the wheel moves forward; the URL keeps it', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=cornell&spp=1`);
+        const cam0 = await waitFullFrame(page);
+        const bounds = await boundsOf(d.base, 'cornell');
+        const diag = Math.sqrt(dot(sub(bounds.max, bounds.min), sub(bounds.max, bounds.min)));
+        const { eye } = eyeTarget(cam0, bounds);
+        const reach = cam0.distance * diag;
+
+        await page.check('#cam-fly');
+        await page.waitForFunction(() => /[?&]cam=fly/.test(location.search), null, { timeout: 5000 });
+        assert.equal(await page.textContent('#hint-drag'), 'Drag to look around');
+
+        // a drag of (60, 30) px turns by 60 and 30 times fov / frame height degrees, the scene following the pointer
+        const box = await page.locator('.frame').first().boundingBox();
+        const cx = box.x + box.width / 2, cy = box.y + box.height / 2;
+        await page.mouse.move(cx, cy);
+        await page.mouse.down();
+        for (let i = 1; i <= 6; i++) await page.mouse.move(cx + 10 * i, cy + 5 * i);
+        await page.mouse.up();
+        const perPixel = cam0.fov / box.height;
+        let yaw = cam0.yaw + 60 * perPixel, pitch = cam0.pitch - 30 * perPixel;
+        const lookAt = (y, p) => {
+            const dir = [Math.cos(rad(p)) * Math.sin(rad(y)), Math.sin(rad(p)), Math.cos(rad(p)) * Math.cos(rad(y))];
+            return { eye, target: sub(eye, mul(dir, reach)) };
+        };
+        let cam = await waitCamera(page, lookAt(yaw, pitch));
+        const turned = yawPitch(cam.eye, cam.target);
+        assert.ok(Math.abs(turned.yaw - yaw) < 1e-3 && Math.abs(turned.pitch - pitch) < 1e-3, JSON.stringify({ turned, yaw, pitch }));
+        assert.ok(yaw > cam0.yaw && pitch < cam0.pitch, 'dragging right and down turns the view left and up');
+
+        // the arrows look the way they point: left, then up, 5 degrees each
+        await page.keyboard.press('ArrowLeft');
+        await page.keyboard.press('ArrowUp');
+        yaw += 5;
+        pitch -= 5;
+        cam = await waitCamera(page, lookAt(yaw, pitch));
+
+        // a wheel notch towards the scene moves eye and target forward, the distance between them kept
+        const f = norm(sub(cam.target, cam.eye));
+        await page.mouse.move(cx, cy);
+        await page.mouse.wheel(0, -100);
+        const ahead = 0.1 * 0.15 * diag; // approach(exp(-0.15)): -ln(factor) * 5 steps
+        cam = await waitCamera(page, { eye: add(cam.eye, mul(f, ahead)), target: add(cam.target, mul(f, ahead)) });
+        assert.ok(Math.abs(Math.sqrt(dot(sub(cam.target, cam.eye), sub(cam.target, cam.eye))) - reach) < TOL);
+        await screenshot(page, 'fly-turned');
+
+        // a reload keeps the fly camera and the view
+        await page.goto(page.url());
+        await page.waitForFunction(() => document.getElementById('cam-fly').checked, null, { timeout: 10000 });
+        await waitCamera(page, { eye: cam.eye, target: cam.target });
+        assert.equal(await page.textContent('#hint-drag'), 'Drag to look around');
+        assert.deepEqual(errors, []);
+    });
+});
