@@ -7,7 +7,9 @@
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { withViewer, screenshot, waitFullFrame } from './lib.mjs';
+import fs from 'node:fs';
+import path from 'node:path';
+import { withViewer, screenshot, waitFullFrame, repo } from './lib.mjs';
 
 const T = { timeout: 180000 };
 const STEP = 0.02; // diagonals a key press moves
@@ -37,6 +39,32 @@ function yawPitch(eye, target) {
 }
 
 const near = (a, b, tol = TOL) => a.every((x, i) => Math.abs(x - b[i]) <= tol);
+
+/** The triangles of an OBJ file (faces fanned), as [[a, b, c], ...] of points. */
+function objTriangles(file) {
+    const v = [], tris = [];
+    for (const line of fs.readFileSync(file, 'utf8').split('\n')) {
+        const w = line.trim().split(/\s+/);
+        if (w[0] === 'v') v.push(w.slice(1, 4).map(Number));
+        if (w[0] === 'f') {
+            const idx = w.slice(1).map((f) => Number(f.split('/')[0]) - 1);
+            for (let i = 2; i < idx.length; i++) tris.push([v[idx[0]], v[idx[i - 1]], v[idx[i]]]);
+        }
+    }
+    return tris;
+}
+
+/** The nearest t > 0 at which o + t d meets a triangle (Moller-Trumbore in double, every triangle), or null. */
+function bruteNearest(tris, o, d) {
+    let best = null;
+    for (const [a, b, c] of tris) {
+        const e1 = sub(b, a), e2 = sub(c, a), p = cross(d, e2), det = dot(e1, p);
+        if (Math.abs(det) < 1e-12) continue;
+        const s = sub(o, a), u = dot(s, p) / det, q = cross(s, e1), v = dot(d, q) / det, t = dot(e2, q) / det;
+        if (u >= 0 && v >= 0 && u + v <= 1 && t > 0 && (best === null || t < best)) best = t;
+    }
+    return best;
+}
 
 /** Waits until pane 0 shows a full frame rendered from eye and target (within TOL); returns that camera. */
 async function waitCamera(page, want) {
@@ -136,6 +164,45 @@ test('the fly camera turns about the eye: a drag, the arrows; the wheel moves fo
         await page.waitForFunction(() => document.getElementById('cam-fly').checked, null, { timeout: 10000 });
         await waitCamera(page, { eye: cam.eye, target: cam.target });
         assert.equal(await page.textContent('#hint-drag'), 'Drag to look around');
+        assert.deepEqual(errors, []);
+    });
+});
+
+test('back from Fly to Orbit, the view orbits the surface at its centre: the eye and the picture stay', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=cornell&spp=1&cam=fly`);
+        await waitFullFrame(page);
+        const bounds = await boundsOf(d.base, 'cornell');
+        const diag = Math.sqrt(dot(sub(bounds.max, bounds.min), sub(bounds.max, bounds.min)));
+        // into the box's open side and a little to the left, so that the frame's centre shows the tall block
+        await page.locator('.frame').first().focus();
+        for (const key of ['Shift+KeyW', 'Shift+KeyW', 'KeyA', 'KeyA', 'KeyA']) await page.keyboard.press(key);
+        await page.waitForFunction(() => !window.arbor.moving && /[?&]target=/.test(location.search), null, { timeout: 10000 });
+        const flown = await waitFullFrame(page);
+        const { eye, target } = eyeTarget(flown, bounds);
+        const forward = norm(sub(target, eye));
+        const t = bruteNearest(objTriangles(path.join(repo, 'models', 'cornell.obj')), eye, forward);
+        assert.ok(t !== null && t < Math.sqrt(dot(sub(target, eye), sub(target, eye))), `the line of sight meets the model at ${t}, before the fly target`);
+
+        await page.check('#cam-orbit');
+        const cam = await waitCamera(page, { eye, target: add(eye, mul(forward, t)) });
+        assert.doesNotMatch(page.url(), /[?&]cam=/);
+        assert.match(page.url(), new RegExp(`dist=${Math.round((t / diag) * 1e4) / 1e4}(&|$)`));
+        // orbiting now turns about that point: a drag keeps the eye at t from it
+        const box = await page.locator('.frame').first().boundingBox();
+        await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);
+        await page.mouse.down();
+        for (let i = 1; i <= 5; i++) await page.mouse.move(box.x + box.width / 2 + 8 * i, box.y + box.height / 2);
+        await page.mouse.up();
+        await page.waitForFunction((c0) => {
+            const c = document.querySelector('canvas.image[data-pane="0"]');
+            return c.dataset.frame === 'full' && !window.arbor.moving && c.dataset.camera !== c0;
+        }, JSON.stringify(cam), { timeout: 30000 });
+        const orbited = await waitFullFrame(page);
+        assert.ok(near(orbited.target, cam.target), `the orbit moved its target: ${orbited.target} vs ${cam.target}`);
+        const r = Math.sqrt(dot(sub(orbited.eye, orbited.target), sub(orbited.eye, orbited.target)));
+        assert.ok(Math.abs(r - t) < 1e-3, `the eye is ${r} from the pivot, not ${t}`);
+        assert.ok(!near(orbited.eye, eye), 'the drag did not orbit');
         assert.deepEqual(errors, []);
     });
 });

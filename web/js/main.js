@@ -3,7 +3,7 @@
 // depth, ...) so a link reopens the same frame.
 
 import * as api from './api.js';
-import { protocolOrbit, clampPitch, requestCamera } from './camera.js';
+import { protocolOrbit, clampPitch, requestCamera, viewEyeTarget, boundsFrame, add, sub, scale, normalize, dot } from './camera.js';
 import { Pane, rowSamples } from './view.js';
 import { attachControls, MIN_DISTANCE, MAX_DISTANCE } from './controls.js';
 import { renderStats, renderLegend, renderRay, renderRaySummary, triangles, treeLabel } from './panels.js';
@@ -328,8 +328,10 @@ class App {
         $('fov-default').addEventListener('click', () => this.setFov(protocolOrbit().fov));
         for (const id of ['cam-orbit', 'cam-fly']) {
             $(id).addEventListener('change', () => {
+                const landing = s.fly && !$('cam-fly').checked;
                 s.fly = $('cam-fly').checked;
                 this.changed({ noFrame: true });
+                if (landing) this.pivotAtCentre();
             });
         }
         $('reset').addEventListener('click', () => this.resetView());
@@ -488,6 +490,31 @@ class App {
         const fov = this.state.view.fov;
         this.state.view = { ...protocolOrbit(), fov, target: null };
         this.updateView(() => {});
+    }
+
+    /**
+     * Orbit about what the frame's centre shows: the target slides along the
+     * line of sight to the surface there, so the picture stays as it is. A
+     * fly camera's target lies its distance ahead, often outside the hall it
+     * flew into; orbiting that would swing the eye out through the walls.
+     * The line of sight is the only pixel of a 1 x 1 frame, traced by the
+     * daemon. Nothing changes when it hits nothing, fails, or the view has
+     * moved meanwhile.
+     */
+    async pivotAtCentre() {
+        const s = this.state, model = this.model(), asked = JSON.stringify(s.view);
+        if (!model) return;
+        const req = { model: s.model, accel: s.accel, builder: s.builder, camera: requestCamera(model.bounds, s.view), width: 1, height: 1, x: 0, y: 0 };
+        const traced = await api.traceRay(req).catch(() => null);
+        if (!traced?.hit || JSON.stringify(s.view) !== asked || this.model() !== model || s.fly) return;
+        const { eye, target } = viewEyeTarget(model.bounds, s.view);
+        const forward = normalize(sub(target, eye));
+        const reach = traced.hit.t * dot(normalize(traced.ray.dir), forward) / boundsFrame(model.bounds).diagonal;
+        const distance = Math.min(MAX_DISTANCE, Math.max(MIN_DISTANCE, reach));
+        this.updateView((v) => {
+            v.distance = distance;
+            v.target = add(eye, scale(forward, distance * boundsFrame(model.bounds).diagonal));
+        });
     }
 
     viewportAspect(a) {
