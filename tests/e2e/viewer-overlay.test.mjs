@@ -207,13 +207,19 @@ test("over a heat frame, whose colours are the tree's, the boxes have a dark cas
         await page.waitForFunction(() => window.arbor.panes[0].shown.req.mode === 'heat');
         await afterPaint(page);
         await screenshot(page, 'overlay-boxes-heat');
+        // the key's depth swatches are cased as the boxes are
+        const swatchesCased = () => page.$$eval('#key-depths .key-swatch', (s) => s.map((e) => getComputedStyle(e).boxShadow !== 'none'));
         const heat = await dark();
         assert.ok(heat.drawn > 1000 && heat.black > heat.drawn / 8, `over the heat frame: ${JSON.stringify(heat)}`);
+        const keyHeat = await swatchesCased();
+        assert.ok(keyHeat.length >= 1 && keyHeat.every(Boolean), `the key's swatches over heat: cased ${keyHeat}`);
         await page.selectOption('#mode', 'normals');
         await page.waitForFunction(() => window.arbor.panes[0].shown?.req.mode === 'normals' && !window.arbor.panes[0].shown.quick, null, { timeout: 60000 });
         await afterPaint(page);
         const normals = await dark();
         assert.ok(normals.drawn > 1000 && normals.black < normals.drawn / 50, `over the normals frame: ${JSON.stringify(normals)}`);
+        const keyNormals = await swatchesCased();
+        assert.ok(keyNormals.length >= 1 && !keyNormals.some(Boolean), `the key's swatches over normals: cased ${keyNormals}`);
         assert.deepEqual(errors, []);
     });
 });

@@ -12,7 +12,7 @@ import { Uploader } from './upload.js';
 import { CostDiff } from './diff.js';
 import { Slots } from './slots.js';
 import { savePanes } from './save.js';
-import { renderKey, treeDepths, rayParts } from './overlay.js';
+import { renderKey, treeDepths, rayParts, boxesCased } from './overlay.js';
 
 const ACCELS = ['bvh', 'kd'];
 const BUILDERS = ['spatial', 'median', 'mean', 'sah'];
@@ -609,12 +609,14 @@ class App {
     /** The key to what the panes' overlays draw: the depths of their boxes (in split view, of both) and the ray's parts. */
     renderOverlayKey() {
         const depths = new Set(), parts = [];
+        let cased = false;
         for (const p of this.panes) {
-            const { boxes, ray } = p.overlayContent();
+            const { frame, boxes, ray } = p.overlayContent();
             if (boxes) for (const d of treeDepths(boxes.data)) depths.add(d);
+            if (boxes) cased ||= boxesCased(boxes.data, frame?.req.mode === 'heat');
             if (ray) parts.push(...rayParts(ray.data));
         }
-        renderKey($('overlay-key'), [...depths].sort((a, b) => a - b), parts, !this.dark.matches);
+        renderKey($('overlay-key'), [...depths].sort((a, b) => a - b), parts, !this.dark.matches, cased);
     }
 
     /** Which tree's levels the depth slider walks: the one rays traverse, shallower than a BVH's binary tree in the stats. */

@@ -154,12 +154,15 @@ export function treeDepths(data) {
  * colours, a box has a dark casing, as the path's lines do (hairlines, past
  * WIDE_BOXES boxes, go without: they must stay fast).
  */
+/** Whether drawTree draws a boxes answer's boxes cased: over a heat frame, when few enough to draw wide. */
+export const boxesCased = (data, heat) => heat && (data.boxes || []).length <= WIDE_BOXES;
+
 function drawTree(ctx, v, data, { dpr, light, heat, underRay }) {
     const list = data.boxes || [];
     const depths = treeDepths(data).slice().reverse();
     const alpha = (list.length > 2000 ? 0.55 : list.length > 200 ? 0.75 : 0.95) * (underRay ? 0.4 : 1);
     const wide = list.length <= WIDE_BOXES;
-    const width = wide ? Math.max(1, dpr) : 1, casing = heat && wide ? 2 * dpr : 0;
+    const width = wide ? Math.max(1, dpr) : 1, casing = boxesCased(data, heat) ? 2 * dpr : 0;
     const layers = depths.map((d) => ({ colour: depthColour(d, light), alpha, width: d === 0 ? 2 * dpr : width, casing }));
     const layerOf = new Map(depths.map((d, i) => [d, i]));
     strokeLayers(ctx, layers, boxPaths(v, list, layers.length, (b) => layerOf.get(b.depth ?? data.depth)));
@@ -237,16 +240,17 @@ const keyShown = new WeakMap(); // element -> the HTML it holds: rebuilt only fo
 /**
  * The key under the frames: the colours of the depths drawn (`depths`) and of
  * the ray's parts drawn (`parts`, RAY_PARTS' names); hidden when neither is.
- * Swatches take the colours the overlay strokes with; the labels are the
- * page's own words (RAY_PARTS), no HTML to escape.
+ * Swatches take the colours the overlay strokes with, and the boxes' casing
+ * when `casedBoxes` (boxesCased); the labels are the page's own words
+ * (RAY_PARTS), no HTML to escape.
  */
-export function renderKey(el, depths, parts, light) {
+export function renderKey(el, depths, parts, light, casedBoxes = false) {
     const item = (attr, cls, colour, text) =>
         `<li class="key-item" ${attr}><span class="key-swatch ${cls}" style="border-color:${colour}" aria-hidden="true"></span>${text}</li>`;
     let html = '';
     if (depths.length) {
         html += `<div class="key-row" id="key-depths"><span class="key-title" id="key-depths-title">Boxes by depth</span>` +
-            `<ul aria-labelledby="key-depths-title">${depths.map((d) => item(`data-depth="${d}"`, '', depthColour(d, light), d)).join('')}</ul></div>`;
+            `<ul aria-labelledby="key-depths-title">${depths.map((d) => item(`data-depth="${d}"`, casedBoxes ? 'cased' : '', depthColour(d, light), d)).join('')}</ul></div>`;
     }
     if (parts.length) {
         const shape = (k) => ['cased', RAY_PARTS[k].dash ? 'dashed' : '', k === 'ray' ? 'line' : k === 'hit' || k === 'miss' ? 'ring' : ''].join(' ');
