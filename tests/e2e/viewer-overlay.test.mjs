@@ -108,6 +108,8 @@ function contrast(a, b) {
 
 /** Clicks the middle of pane 0's frame and waits for the traced ray drawn. */
 async function inspectMiddle(page) {
+    // a control filled further down the side panel may have scrolled the frame out of the viewport
+    await page.locator('#frame-0').scrollIntoViewIfNeeded();
     const box = await page.locator('#frame-0').boundingBox();
     await page.mouse.click(box.x + box.width / 2, box.y + box.height / 2);
     await page.waitForSelector('#ray-counts', { timeout: 30000 });
