@@ -3,11 +3,14 @@
 // the first's, as POST /api/ray counts them for that pixel's ray in each
 // tree; the means are the daemon's own heat_mean of each tree; the figure
 // follows the view once it rests, the URL keeps it, and it goes with split
-// view, and a refusal is quoted without asking again.
+// view, and a refusal is quoted without asking again. Save PNG puts the
+// figure under the two frames, only while it is of the frames saved.
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { withViewer, screenshot, recordRequests, waitFullFrame, postJSON } from './lib.mjs';
+import fs from 'node:fs';
+import path from 'node:path';
+import { withViewer, screenshot, recordRequests, waitFullFrame, postJSON, shotDir } from './lib.mjs';
 
 const T = { timeout: 240000 };
 // ColorBrewer RdBu's ends and middle, as the page's key says: blue, the second tree does less; red, more
@@ -121,6 +124,130 @@ test('a daemon that refuses the costs is quoted under the figure, and not asked 
         await page.waitForTimeout(1000);
         assert.equal(asked, once, 'the refused costs were asked for again for the same view');
         // the browser logs the refused request itself; nothing else went wrong
+        assert.deepEqual(errors.filter((e) => !/Failed to load resource/.test(e)), []);
+    });
+});
+
+/** Clicks Save PNG once it is offered; returns the PNG's bytes, kept in build/e2e/<name>.png. */
+async function savePNG(page, name) {
+    await page.waitForSelector('#save-png:not([disabled])', { timeout: 60000 });
+    const [download] = await Promise.all([page.waitForEvent('download'), page.click('#save-png')]);
+    const file = fs.readFileSync(await download.path());
+    fs.mkdirSync(shotDir, { recursive: true });
+    fs.writeFileSync(path.join(shotDir, `${name}.png`), file);
+    return file;
+}
+
+/** Width and height of a PNG's IHDR. */
+const pngSize = (buf) => [buf.readUInt32BE(16), buf.readUInt32BE(20)];
+
+/**
+ * The saved PNG `file` against the PNG saved without the figure (`plain`)
+ * and the page's figure canvas: pixels of plain's area that differ, pixels
+ * of the figure's image (at the band's bottom left) that differ from the
+ * canvas's and how many of those are blue or red (what the comparison is
+ * worth), and the pixels of the band beside the image at the key's ends.
+ */
+function compareSaved(page, file, plain) {
+    return page.evaluate(async ({ file, plain, LESS, MORE }) => {
+        const decode = async (b64) => {
+            const bmp = await createImageBitmap(new Blob([Uint8Array.from(atob(b64), (ch) => ch.charCodeAt(0))], { type: 'image/png' }));
+            const c = new OffscreenCanvas(bmp.width, bmp.height);
+            c.getContext('2d').drawImage(bmp, 0, 0);
+            return c.getContext('2d').getImageData(0, 0, bmp.width, bmp.height);
+        };
+        const [saved, old] = [await decode(file), await decode(plain)];
+        const px = (img, x, y) => img.data.slice((y * img.width + x) * 4, (y * img.width + x) * 4 + 3);
+        const same = (a, b, tol = 0) => [0, 1, 2].every((i) => Math.abs(a[i] - b[i]) <= tol);
+        let oldDiffer = 0;
+        for (let y = 0; y < old.height; y++) for (let x = 0; x < old.width; x++) if (!same(px(saved, x, y), px(old, x, y))) oldDiffer++;
+        const c = document.getElementById('diff-canvas');
+        const fig = c.getContext('2d').getImageData(0, 0, c.width, c.height);
+        const y0 = saved.height - fig.height;
+        let figDiffer = 0, blue = 0, red = 0, compared = 0;
+        for (let y = 0; y < fig.height; y += 3) {
+            for (let x = 0; x < fig.width; x += 3) {
+                const want = px(fig, x, y);
+                compared++;
+                if (!same(px(saved, x, y0 + y), want)) figDiffer++;
+                if (want[2] > want[0] + 40) blue++;
+                if (want[0] > want[2] + 40) red++;
+            }
+        }
+        let keyLess = 0, keyMore = 0;
+        for (let y = old.height; y < saved.height; y++) {
+            for (let x = fig.width; x < saved.width; x++) {
+                if (same(px(saved, x, y), LESS, 3)) keyLess++;
+                if (same(px(saved, x, y), MORE, 3)) keyMore++;
+            }
+        }
+        return { figure: [fig.width, fig.height], y0, oldDiffer, figDiffer, compared, blue, red, keyLess, keyMore };
+    }, { file: file.toString('base64'), plain: plain.toString('base64'), LESS, MORE });
+}
+
+test('Save PNG puts the difference under the frames (its image pixel for pixel, title, key and figures) only while it is of the frames saved', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=cornell&accel=bvh&builder=median&split=kd:sah&diff=1&spp=1`);
+        await waitFullFrame(page, 0, 60000);
+        await waitFullFrame(page, 1, 60000);
+        await figureDone(page);
+        // the words the saved picture's canvas is given
+        await page.evaluate(() => {
+            const fillText = CanvasRenderingContext2D.prototype.fillText;
+            window.savedText = [];
+            CanvasRenderingContext2D.prototype.fillText = function (text, ...at) {
+                window.savedText.push(String(text));
+                return fillText.call(this, text, ...at);
+            };
+        });
+        const withFigure = await savePNG(page, 'saved-diff');
+        const drawn = await page.evaluate(() => window.savedText);
+        const shown = await page.evaluate(() => ({
+            title: document.getElementById('diff-title').textContent,
+            ticks: [...document.querySelectorAll('#diff-ticks span')].map((s) => s.textContent),
+            rows: [...document.querySelectorAll('#diff-stats tr')].map((tr) => [tr.querySelector('th').textContent, tr.querySelector('td').textContent]),
+        }));
+        // the figure off: the two frames under their titles, as Save PNG saved them before the figure
+        await page.uncheck('#diff-on');
+        await page.waitForFunction(() => document.getElementById('diff').hidden);
+        const plain = await savePNG(page, 'saved-diff-off');
+        assert.deepEqual(pngSize(plain), [2 * 640 + 8, 28 + 480], 'the PNG without the figure is not the two frames under their titles');
+        const [w, h] = pngSize(withFigure);
+        assert.equal(w, pngSize(plain)[0]);
+        assert.ok(h >= pngSize(plain)[1] + 480 + 20 && h <= pngSize(plain)[1] + 480 + 60,
+            `saved ${w}×${h}: not the frames and a band of the figure's 480 rows under its title`);
+        const cmp = await compareSaved(page, withFigure, plain);
+        assert.deepEqual(cmp.figure, [640, 480], 'the figure is not one pixel per frame pixel');
+        assert.equal(cmp.oldDiffer, 0, 'the frames and their titles are not as saved without the figure');
+        assert.ok(cmp.blue > 100 && cmp.red > 100, `the figure is too plain to tell anything: ${JSON.stringify(cmp)}`);
+        assert.equal(cmp.figDiffer, 0, `the saved figure is not the page's: ${JSON.stringify(cmp)}`);
+        assert.ok(cmp.keyLess > 20 && cmp.keyMore > 20, `no colour key beside the figure: ${JSON.stringify(cmp)}`);
+        // the page's own title, ends and figures, word for word
+        assert.match(shown.title, /k-d sah − BVH median/);
+        for (const t of [shown.title, ...shown.ticks, ...shown.rows.flat()]) assert.ok(drawn.includes(t), `"${t}" is not in the saved PNG`);
+        // a figure of the view before an orbit (the new view's costs refused) is not saved under the new view's frames
+        await page.check('#diff-on');
+        await figureDone(page);
+        await page.route('**/api/render', (route) => {
+            if (JSON.parse(route.request().postData() || '{}').format !== 'costs') return route.continue();
+            return route.fulfill({ status: 503, json: { error: { code: 'busy', message: 'held back by the test' } } });
+        });
+        const orbit = async (key) => {
+            const before = await page.evaluate(() => JSON.stringify(window.arbor.panes[0].lastFull.req.camera));
+            await page.focus('#frame-0');
+            await page.keyboard.press(key);
+            await page.waitForFunction((cam) => window.arbor.framesComplete() &&
+                window.arbor.panes.every((p) => JSON.stringify(p.lastFull.req.camera) !== cam), before, { timeout: 60000 });
+        };
+        await orbit('ArrowLeft');
+        await page.waitForSelector('#diff-status.error:not([hidden])', { timeout: 60000 });
+        assert.equal(await page.$eval('#diff', (el) => el.classList.contains('stale')), true, 'the figure is not marked stale');
+        assert.deepEqual(pngSize(await savePNG(page, 'saved-diff-stale')), pngSize(plain), 'a stale figure was saved');
+        // the next view's figure is measured, and saved
+        await page.unroute('**/api/render');
+        await orbit('ArrowRight');
+        await figureDone(page);
+        assert.deepEqual(pngSize(await savePNG(page, 'saved-diff-orbited')), [w, h], "the new view's figure is not saved");
         assert.deepEqual(errors.filter((e) => !/Failed to load resource/.test(e)), []);
     });
 });

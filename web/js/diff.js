@@ -2,7 +2,8 @@
 // second tree's node steps + triangle tests minus the first's, for the ray
 // through the pixel's centre (POST /api/render format=costs at 1 spp, the
 // counts the ray inspector shows), drawn in a diverging colour map beside
-// its scale and a summary of where each tree does less.
+// its scale and a summary of where each tree does less; the figure drawn is
+// kept for Save PNG to put under the frames it was measured for.
 
 import * as api from './api.js';
 import { stripRegions, rowSamples } from './view.js';
@@ -19,7 +20,11 @@ const LESS = [33, 102, 172], SAME = [247, 247, 247], MORE = [178, 24, 43];
 // a ray that touches nothing costs 0 in a k-d tree (clipped to the bounds first) and 1 in a BVH (its root)
 const IDLE = 1;
 
-const rgb = (c) => `rgb(${c.join(', ')})`;
+// the key's colours from its negative end to its positive one
+const STOPS = [LESS, SAME, MORE].map((c) => `rgb(${c.join(', ')})`);
+
+/** What of a render request its costs depend on: what a figure is of. */
+const costRequest = (r) => ({ model: r.model, accel: r.accel, builder: r.builder, width: r.width, height: r.height, camera: r.camera });
 
 /** The colour of difference d on a scale of +-scale. */
 function diffColour(d, scale) {
@@ -48,11 +53,35 @@ function diffSummary(a, b) {
     return { meanA: sumA / a.length, meanB: sumB / a.length, working: less + same + more, less, same, more, scale };
 }
 
+/**
+ * The words and figures of summary s of the costs of reqs (the first and the
+ * second tree's), as plain text: the page's figure shows them and Save PNG
+ * draws them, so both say the same.
+ */
+function figureText(reqs, s) {
+    const [a, b] = reqs.map(treeLabel);
+    const pct = (k) => (s.working ? `${fmt((100 * k) / s.working, 1)}%` : '—');
+    return {
+        title: `${b} − ${a}: node steps + triangle tests per pixel`,
+        ticks: [`−${fmt(s.scale)}`, '0', `+${fmt(s.scale)}`],
+        legend: `Blue: ${b} does less work than ${a}; red: more`,
+        rows: [
+            { key: 'mean_a', label: `Mean per pixel, ${a}`, value: fmt(s.meanA) },
+            { key: 'mean_b', label: `Mean per pixel, ${b}`, value: fmt(s.meanB) },
+            { key: 'ratio', label: `${b} / ${a}`, value: s.meanA > 0 ? `${fmt(s.meanB / s.meanA)}×` : '—' },
+            { key: 'working', label: 'Pixels where either tree works', value: fmt(s.working) },
+            { key: 'less', label: `…${b} does less`, value: pct(s.less) },
+            { key: 'same', label: '…the same', value: pct(s.same) },
+            { key: 'more', label: `…${b} does more`, value: pct(s.more) },
+        ],
+    };
+}
+
 export class CostDiff {
     constructor(app) {
         this.app = app;
         this.key = '';          // the requests whose costs are shown or on their way
-        this.shownKey = '';     // the requests whose costs are drawn
+        this.shown = null;      // the figure drawn: {key, image (ImageData), stops, title, ticks, legend, rows}
         this.controller = null; // aborts the costs on their way
         this.el = $('diff');
     }
@@ -61,10 +90,24 @@ export class CostDiff {
     requests() {
         const app = this.app;
         if (!app.state.split.on || !app.state.split.diff || app.panes.length < 2 || !app.model() || app.state.tab !== 'view') return null;
-        return app.panes.map((p) => {
-            const r = p.request(false);
-            return { model: r.model, accel: r.accel, builder: r.builder, width: r.width, height: r.height, camera: r.camera };
-        });
+        return app.panes.map((p) => costRequest(p.request(false)));
+    }
+
+    /** What identifies a figure: its cost requests, the model's version (one replaced under its name is measured again) and the background drawn. */
+    keyOf(reqs, background) {
+        return `${this.app.model().version} ${background} ${JSON.stringify(reqs)}`;
+    }
+
+    /**
+     * The figure drawn, for Save PNG to put under frames (the panes'
+     * lastFull), while the page shows it and it is of these very frames:
+     * their view, trees, size and background; else null (hidden, or left
+     * from another view while this one's costs are measured).
+     */
+    figureOf(frames) {
+        if (!this.requests() || !this.shown) return null;
+        const key = this.keyOf(frames.map((f) => costRequest(f.req)), frames[0].req.background);
+        return this.shown.key === key ? this.shown : null;
     }
 
     /** From the panels' redraw: hidden, kept, or measured again once the view rests. */
@@ -76,9 +119,8 @@ export class CostDiff {
             this.key = '';
             return;
         }
-        // a model replaced under its name is measured again; the background is drawn with the scheme's
-        const key = `${this.app.model().version} ${this.app.background()} ${JSON.stringify(reqs)}`;
-        this.el.classList.toggle('stale', this.shownKey !== key);
+        const key = this.keyOf(reqs, this.app.background());
+        this.el.classList.toggle('stale', this.shown?.key !== key);
         if (key === this.key) return;
         // costs of a view left behind would hold the daemon's workers from the quick frames of the new one
         this.abort();
@@ -99,8 +141,7 @@ export class CostDiff {
         try {
             const [a, b] = await Promise.all(reqs.map((r) => this.costsOf(r, controller.signal)));
             if (controller.signal.aborted) return;
-            this.draw(reqs, a, b);
-            this.shownKey = key;
+            this.shown = { key, ...this.draw(reqs, a, b) };
             this.el.classList.remove('stale');
             this.status('');
         } catch (e) {
@@ -124,10 +165,10 @@ export class CostDiff {
         return costs;
     }
 
+    /** Draws the figure of costs a and b of reqs; returns its image and text (figureText). */
     draw(reqs, a, b) {
         const { width: W, height: H } = reqs[0];
-        const [nameA, nameB] = reqs.map((r) => esc(treeLabel(r)));
-        const s = diffSummary(a, b);
+        const s = diffSummary(a, b), text = figureText(reqs, s);
         const canvas = $('diff-canvas');
         canvas.width = W;
         canvas.height = H;
@@ -143,23 +184,14 @@ export class CostDiff {
         canvas.dataset.scale = String(s.scale);
         canvas.setAttribute('aria-label', `${treeLabel(reqs[1])} minus ${treeLabel(reqs[0])}, node steps plus triangle tests per pixel: ` +
             `blue where it does less work, red where it does more, up to ${s.scale}`);
-        $('diff-title').innerHTML = `${nameB} − ${nameA}: node steps + triangle tests per pixel`;
-        $('diff-bar').style.background = `linear-gradient(to right, ${rgb(LESS)}, ${rgb(SAME)}, ${rgb(MORE)})`;
-        $('diff-ticks').innerHTML = [`−${fmt(s.scale)}`, '0', `+${fmt(s.scale)}`]
-            .map((t, i) => `<span style="left:${i * 50}%">${t}</span>`).join('');
-        $('diff-note').innerHTML = `Blue: ${nameB} does less work than ${nameA}; red: more; the ends, a difference of ` +
-            `${fmt(s.scale)} or more (the 99th percentile). Rays that touch nothing in either tree take the background.`;
-        const pct = (k) => (s.working ? `${fmt((100 * k) / s.working, 1)}%` : '—');
-        const row = (label, value, key) => `<tr data-key="${key}"><th scope="row">${label}</th><td>${value}</td></tr>`;
-        $('diff-stats').innerHTML = '<tbody>' +
-            row(`Mean per pixel, ${nameA}`, fmt(s.meanA), 'mean_a') +
-            row(`Mean per pixel, ${nameB}`, fmt(s.meanB), 'mean_b') +
-            row(`${nameB} / ${nameA}`, s.meanA > 0 ? `${fmt(s.meanB / s.meanA)}×` : '—', 'ratio') +
-            row('Pixels where either tree works', fmt(s.working), 'working') +
-            row(`…${nameB} does less`, pct(s.less), 'less') +
-            row('…the same', pct(s.same), 'same') +
-            row(`…${nameB} does more`, pct(s.more), 'more') +
-            '</tbody>';
+        $('diff-title').textContent = text.title;
+        $('diff-bar').style.background = `linear-gradient(to right, ${STOPS.join(', ')})`;
+        $('diff-ticks').innerHTML = text.ticks.map((t, i) => `<span style="left:${i * 50}%">${esc(t)}</span>`).join('');
+        $('diff-note').textContent = `${text.legend}; the ends, a difference of ${fmt(s.scale)} or more (the 99th percentile). ` +
+            'Rays that touch nothing in either tree take the background.';
+        $('diff-stats').innerHTML = `<tbody>${text.rows.map((r) =>
+            `<tr data-key="${r.key}"><th scope="row">${esc(r.label)}</th><td>${esc(r.value)}</td></tr>`).join('')}</tbody>`;
+        return { image: img, stops: STOPS, ...text };
     }
 
     status(text, error = false) {

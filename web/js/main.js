@@ -699,7 +699,7 @@ class App {
             this.notify('The frame of this view is not complete yet; Save PNG is ready once it is.', 'error');
             return;
         }
-        savePanes(this.panes, !this.dark.matches).catch((e) => this.notify(`Saving the PNG failed: ${e.message}`, 'error'));
+        savePanes(this.panes, !this.dark.matches, this.costDiff).catch((e) => this.notify(`Saving the PNG failed: ${e.message}`, 'error'));
     }
 }
 

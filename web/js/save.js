@@ -2,13 +2,23 @@
 // its strips assembled it), with the tree's boxes and the inspected ray drawn
 // over it when the page shows them; in split view both panes' frames side by
 // side in one PNG, each under its title, so the saved picture says which tree
-// is which.
+// is which, and under them the difference of their work when the page shows
+// it for these frames (diff.js): its image, title, key and figures.
 
 import { treeLabel } from './panels.js';
 import { canvasView, drawContent } from './overlay.js';
 
 const TITLE_PX = 28;  // the band above each frame holding its title
-const GAP_PX = 8;     // between the frames
+const GAP_PX = 8;     // between the frames, and above the difference's band
+const PAD_PX = 6;     // text from the edges of its column
+const ROW_PX = 20;    // a line of the difference's key or figures
+const TITLE_FONT = '600 15px system-ui, sans-serif';
+
+/** Text colours on background bg (0..1), the page's: light on a dark one, dark on a light one. */
+const inkOn = (bg) => (bg[0] + bg[1] + bg[2] < 1.5 ? { text: '#e6e8ec', muted: '#9aa3b2' } : { text: '#1b1f24', muted: '#5a6270' });
+
+/** Lines the difference's key and figures take beside its image: the colour bar, its ends, its legend, the figures. */
+const keyRows = (fig) => 3 + fig.rows.length;
 
 /** A frame's title, as its pane names it: tree, mode, size, samples. */
 const titleOf = (req) => `${treeLabel(req)} · ${req.mode} · ${req.width}×${req.height} · ${req.spp} spp`;
@@ -36,27 +46,66 @@ async function frameWithOverlay(p, light) {
     return toPNG(canvas);
 }
 
-/** The panes' frames (blobs) side by side on the frames' background, each under its title. */
-async function sideBySide(frames, blobs) {
+/**
+ * The difference of the panes' work (CostDiff's figure) in a band from y
+ * down: its title across, its image under the first frame at one pixel per
+ * frame pixel, and under the second frame (column x, width) its key and figures.
+ */
+function drawDiff(ctx, fig, y, x, width, ink) {
+    ctx.fillStyle = ink.text;
+    ctx.font = TITLE_FONT;
+    ctx.fillText(fig.title, PAD_PX, y + TITLE_PX / 2, ctx.canvas.width - 2 * PAD_PX);
+    y += TITLE_PX;
+    ctx.putImageData(fig.image, 0, y);
+    x += PAD_PX;
+    width -= 2 * PAD_PX;
+    const mid = (row) => y + (row + 0.5) * ROW_PX;
+    const bar = ctx.createLinearGradient(x, 0, x + width, 0);
+    fig.stops.forEach((c, i) => bar.addColorStop(i / (fig.stops.length - 1), c));
+    ctx.fillStyle = bar;
+    ctx.fillRect(x, mid(0) - 7, width, 14);
+    ctx.font = '13px system-ui, sans-serif';
+    ctx.fillStyle = ink.text;
+    // the ends under the bar's ends, the middle under its middle, as the page's key
+    fig.ticks.forEach((t, i, all) => {
+        ctx.textAlign = i === 0 ? 'left' : i === all.length - 1 ? 'right' : 'center';
+        ctx.fillText(t, x + (i * width) / (all.length - 1), mid(1));
+    });
+    ctx.textAlign = 'left';
+    ctx.fillStyle = ink.muted;
+    ctx.fillText(fig.legend, x, mid(2), width);
+    fig.rows.forEach((r, i) => {
+        const valueWidth = ctx.measureText(r.value).width;
+        ctx.fillStyle = ink.muted;
+        ctx.fillText(r.label, x, mid(3 + i), width - valueWidth - PAD_PX);
+        ctx.fillStyle = ink.text;
+        ctx.textAlign = 'right';
+        ctx.fillText(r.value, x + width, mid(3 + i));
+        ctx.textAlign = 'left';
+    });
+}
+
+/** The panes' frames (blobs) side by side on the frames' background, each under its title; the difference's figure (or null) under them. */
+async function sideBySide(frames, blobs, figure) {
     const bitmaps = await Promise.all(blobs.map((b) => createImageBitmap(b)));
+    const xs = bitmaps.map((b, i) => bitmaps.slice(0, i).reduce((x, p) => x + p.width + GAP_PX, 0));
+    const frameH = Math.max(...bitmaps.map((b) => b.height));
     const canvas = document.createElement('canvas');
-    canvas.width = bitmaps.reduce((w, b) => w + b.width, 0) + GAP_PX * (bitmaps.length - 1);
-    canvas.height = TITLE_PX + Math.max(...bitmaps.map((b) => b.height));
+    canvas.width = xs[xs.length - 1] + bitmaps[bitmaps.length - 1].width;
+    canvas.height = TITLE_PX + frameH + (figure ? GAP_PX + TITLE_PX + Math.max(figure.image.height, keyRows(figure) * ROW_PX) : 0);
     const ctx = canvas.getContext('2d');
-    const bg = frames[0].req.background;
+    const bg = frames[0].req.background, ink = inkOn(bg);
     ctx.fillStyle = `rgb(${bg.map((c) => Math.round(c * 255)).join(',')})`;
     ctx.fillRect(0, 0, canvas.width, canvas.height);
-    // light text on a dark background, dark on a light one
-    ctx.fillStyle = bg[0] + bg[1] + bg[2] < 1.5 ? '#e6e8ec' : '#1b1f24';
-    ctx.font = '600 15px system-ui, sans-serif';
+    ctx.fillStyle = ink.text;
+    ctx.font = TITLE_FONT;
     ctx.textBaseline = 'middle';
-    let x = 0;
     bitmaps.forEach((b, i) => {
-        ctx.fillText(titleOf(frames[i].req), x + 6, TITLE_PX / 2, b.width - 12);
-        ctx.drawImage(b, x, TITLE_PX);
-        x += b.width + GAP_PX;
-        b.close();
+        ctx.fillText(titleOf(frames[i].req), xs[i] + PAD_PX, TITLE_PX / 2, b.width - 2 * PAD_PX);
+        ctx.drawImage(b, xs[i], TITLE_PX);
     });
+    if (figure) drawDiff(ctx, figure, TITLE_PX + frameH + GAP_PX, xs[1], bitmaps[1].width, ink);
+    for (const b of bitmaps) b.close();
     return toPNG(canvas);
 }
 
@@ -70,12 +119,18 @@ function download(blob, name) {
     setTimeout(() => URL.revokeObjectURL(a.href), 10000);
 }
 
-/** Downloads the panes' complete full frames (Pane.complete) as one PNG; light: the page's colour scheme. */
-export async function savePanes(panes, light) {
+/**
+ * Downloads the panes' complete full frames (Pane.complete) as one PNG, with
+ * the difference of their work under them when diff (the CostDiff) shows it
+ * for these frames; light: the page's colour scheme.
+ */
+export async function savePanes(panes, light, diff) {
     const frames = panes.map((p) => p.lastFull);
+    // taken now: while the frames decode, the figure may be measured again for another view
+    const figure = diff.figureOf(frames);
     const r = frames[0].req;
     const trees = frames.map((f) => `${f.req.accel}-${f.req.builder}`).join('-vs-');
     const blobs = await Promise.all(panes.map((p) => frameWithOverlay(p, light)));
-    const blob = blobs.length === 1 ? blobs[0] : await sideBySide(frames, blobs);
+    const blob = blobs.length === 1 ? blobs[0] : await sideBySide(frames, blobs, figure);
     download(blob, `${r.model}-${trees}-${r.mode}-${r.width}x${r.height}.png`);
 }
