@@ -141,7 +141,10 @@ test('the fly camera turns about the eye: a drag, the arrows; the wheel moves fo
         let cam = await waitCamera(page, lookAt(yaw, pitch));
         const turned = yawPitch(cam.eye, cam.target);
         assert.ok(Math.abs(turned.yaw - yaw) < 1e-3 && Math.abs(turned.pitch - pitch) < 1e-3, JSON.stringify({ turned, yaw, pitch }));
-        assert.ok(yaw > cam0.yaw && pitch < cam0.pitch, 'dragging right and down turns the view left and up');
+        // the scene followed the pointer: what was at the centre is now right of it and below
+        const sight = norm(sub(cam.target, cam.eye)), r = norm(cross(sight, [0, 1, 0])), u = cross(r, sight);
+        const was = sub(eyeTarget(cam0, bounds).target, cam.eye);
+        assert.ok(dot(was, r) > 0 && dot(was, u) < 0, `the old centre lies at right ${dot(was, r)}, up ${dot(was, u)}`);
 
         // the arrows look the way they point: left, then up, 5 degrees each
         await page.keyboard.press('ArrowLeft');
@@ -171,23 +174,24 @@ test('the fly camera turns about the eye: a drag, the arrows; the wheel moves fo
 test('back from Fly to Orbit, the view orbits the surface at its centre: the eye and the picture stay', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
         await page.goto(`${d.base}/?model=cornell&spp=1&cam=fly`);
-        await waitFullFrame(page);
+        const cam0 = await waitFullFrame(page);
         const bounds = await boundsOf(d.base, 'cornell');
         const diag = Math.sqrt(dot(sub(bounds.max, bounds.min), sub(bounds.max, bounds.min)));
+        const start = eyeTarget(cam0, bounds);
+        const forward = norm(sub(start.target, start.eye)), right = norm(cross(forward, [0, 1, 0]));
         // into the box's open side and a little to the left, so that the frame's centre shows the tall block
         await page.locator('.frame').first().focus();
         for (const key of ['Shift+KeyW', 'Shift+KeyW', 'KeyA', 'KeyA', 'KeyA']) await page.keyboard.press(key);
-        await page.waitForFunction(() => !window.arbor.moving && /[?&]target=/.test(location.search), null, { timeout: 10000 });
-        const flown = await waitFullFrame(page);
-        const { eye, target } = eyeTarget(flown, bounds);
-        const forward = norm(sub(target, eye));
+        const by = mul(add(mul(forward, 2 * 4 * STEP), mul(right, -3 * STEP)), diag);
+        const { eye, target } = await waitCamera(page, { eye: add(start.eye, by), target: add(start.target, by) });
         const t = bruteNearest(objTriangles(path.join(repo, 'models', 'cornell.obj')), eye, forward);
         assert.ok(t !== null && t < Math.sqrt(dot(sub(target, eye), sub(target, eye))), `the line of sight meets the model at ${t}, before the fly target`);
 
         await page.check('#cam-orbit');
         const cam = await waitCamera(page, { eye, target: add(eye, mul(forward, t)) });
         assert.doesNotMatch(page.url(), /[?&]cam=/);
-        assert.match(page.url(), new RegExp(`dist=${Math.round((t / diag) * 1e4) / 1e4}(&|$)`));
+        const dist = Number(new URL(page.url()).searchParams.get('dist'));
+        assert.ok(Math.abs(dist - t / diag) <= 2e-4, `the URL's distance ${dist}, not ${t / diag}`);
         // orbiting now turns about that point: a drag keeps the eye at t from it
         const box = await page.locator('.frame').first().boundingBox();
         await page.mouse.move(box.x + box.width / 2, box.y + box.height / 2);

@@ -48,7 +48,12 @@ export function attachControls(app, frameEl, pane) {
         app.updateView((v) => Object.assign(v, lookFromEye(model.bounds, v, wrapYaw(v.yaw + yaw), v.pitch + pitch)));
     }
 
-    /** A drag of (dx, dy) px: an orbit, or with the fly camera a look that keeps the scene under the pointer. */
+    /**
+     * A drag of (dx, dy) px: an orbit, or with the fly camera a look by fov /
+     * height degrees a pixel, the scene following the pointer: a drag across
+     * the frame's height turns by its field of view (near the centre the
+     * scene lags the pointer by 5% at 45 degrees, perspective being steeper).
+     */
     function turn(dx, dy) {
         if (!app.state.fly) return orbit(dx, dy);
         const perPixel = app.state.view.fov / (size().height || 1);
@@ -176,7 +181,11 @@ export function attachControls(app, frameEl, pane) {
         const step = e.altKey ? 1 : 5;
         const px = (size().height || 400) * (step / 360);
         // the fly camera's arrows turn the way they point: left looks left, up looks up
-        const arrow = (x, y) => (e.shiftKey ? pan(x * px * 4, y * px * 4) : app.state.fly ? look(-x * step, y * step) : orbit(x * px, y * px));
+        const arrow = (x, y) => {
+            if (e.shiftKey) pan(x * px * 4, y * px * 4);
+            else if (app.state.fly) look(-x * step, y * step);
+            else orbit(x * px, y * px);
+        };
         const along = MOVES[e.code];
         if (along && !e.ctrlKey && !e.metaKey) {
             const k = MOVE_STEP * (e.shiftKey ? 4 : e.altKey ? 0.25 : 1);

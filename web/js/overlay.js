@@ -146,6 +146,9 @@ export function treeDepths(data) {
     return depths;
 }
 
+/** Whether drawTree draws a boxes answer's boxes cased: over a heat frame, when few enough to draw wide. */
+export const boxesCased = (data, heat) => heat && (data.boxes || []).length <= WIDE_BOXES;
+
 /**
  * Draws a boxes answer's boxes, a colour per depth, the deepest first so that
  * the few large boxes of the top levels stay visible over the many small
@@ -154,9 +157,6 @@ export function treeDepths(data) {
  * colours, a box has a dark casing, as the path's lines do (hairlines, past
  * WIDE_BOXES boxes, go without: they must stay fast).
  */
-/** Whether drawTree draws a boxes answer's boxes cased: over a heat frame, when few enough to draw wide. */
-export const boxesCased = (data, heat) => heat && (data.boxes || []).length <= WIDE_BOXES;
-
 function drawTree(ctx, v, data, { dpr, light, heat, underRay }) {
     const list = data.boxes || [];
     const depths = treeDepths(data).slice().reverse();

@@ -254,7 +254,7 @@ export class Pane {
         this.titleName.textContent = `${treeLabel(t)} · ${app.state.mode}`;
         this.frame.setAttribute('aria-label',
             `Frame of ${app.state.model}, ${t.accel} ${t.builder} tree, ${app.state.mode} mode. ` +
-            'Drag to orbit, arrow keys orbit, plus and minus zoom, click to inspect a ray.');
+            'Its controls are described below it.');
         this.ensureTree();
         this.markStale();
         // building this tree: its frame waits; frames of a hidden viewer would compete with a benchmark
