@@ -19,17 +19,19 @@ const add = (a, b) => a.map((x, i) => x + b[i]);
 const sub = (a, b) => a.map((x, i) => x - b[i]);
 const mul = (a, s) => a.map((x) => x * s);
 const dot = (a, b) => a.reduce((s, x, i) => s + x * b[i], 0);
-const norm = (a) => mul(a, 1 / Math.sqrt(dot(a, a)));
+const len = (a) => Math.sqrt(dot(a, a));
+const norm = (a) => mul(a, 1 / len(a));
 const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
 const rad = (deg) => (deg * Math.PI) / 180;
+const diagOf = (bounds) => len(sub(bounds.max, bounds.min));
+/** The orbit convention's unit vector from the target to the eye. */
+const orbitDir = (yaw, pitch) => [Math.cos(rad(pitch)) * Math.sin(rad(yaw)), Math.sin(rad(pitch)), Math.cos(rad(pitch)) * Math.cos(rad(yaw))];
 
 /** Eye and target of a request camera: look-at as it is, orbit about the bounds' centre (arbor_camera_orbit). */
 function eyeTarget(cam, bounds) {
     if (cam.eye) return { eye: cam.eye, target: cam.target };
-    const centre = mul(add(bounds.min, bounds.max), 0.5), diag = Math.sqrt(dot(sub(bounds.max, bounds.min), sub(bounds.max, bounds.min)));
-    const y = rad(cam.yaw), p = rad(cam.pitch);
-    const dir = [Math.cos(p) * Math.sin(y), Math.sin(p), Math.cos(p) * Math.cos(y)];
-    return { eye: add(centre, mul(dir, cam.distance * diag)), target: centre };
+    const centre = mul(add(bounds.min, bounds.max), 0.5);
+    return { eye: add(centre, mul(orbitDir(cam.yaw, cam.pitch), cam.distance * diagOf(bounds))), target: centre };
 }
 
 /** Yaw and pitch (degrees) of the orbit convention whose eye looks from eye to target. */
@@ -83,17 +85,18 @@ async function waitCamera(page, want) {
     return waitFullFrame(page);
 }
 
-async function boundsOf(base, name) {
-    const { models } = await fetch(`${base}/api/models`).then((r) => r.json());
-    return models.find((m) => m.name === name).bounds;
+/** Opens cornell at query; its first full frame's camera, the model's bounds and their diagonal. */
+async function openCornell(d, page, query) {
+    await page.goto(`${d.base}/?model=cornell&spp=1${query}`);
+    const cam0 = await waitFullFrame(page);
+    const { models } = await fetch(`${d.base}/api/models`).then((r) => r.json());
+    const bounds = models.find((m) => m.name === 'cornell').bounds;
+    return { cam0, bounds, diag: diagOf(bounds) };
 }
 
 test('W A S D Q E move the eye and its target together, along the view, its right and the world up', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
-        await page.goto(`${d.base}/?model=cornell&spp=1`);
-        const cam0 = await waitFullFrame(page);
-        const bounds = await boundsOf(d.base, 'cornell');
-        const diag = Math.sqrt(dot(sub(bounds.max, bounds.min), sub(bounds.max, bounds.min)));
+        const { cam0, bounds, diag } = await openCornell(d, page, '');
         const { eye, target } = eyeTarget(cam0, bounds);
         const forward = norm(sub(target, eye)), right = norm(cross(forward, [0, 1, 0]));
 
@@ -114,10 +117,7 @@ test('W A S D Q E move the eye and its target together, along the view, its righ
 
 test('the fly camera turns about the eye: a drag, the arrows; the wheel moves forward; the URL keeps it', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
-        await page.goto(`${d.base}/?model=cornell&spp=1`);
-        const cam0 = await waitFullFrame(page);
-        const bounds = await boundsOf(d.base, 'cornell');
-        const diag = Math.sqrt(dot(sub(bounds.max, bounds.min), sub(bounds.max, bounds.min)));
+        const { cam0, bounds, diag } = await openCornell(d, page, '');
         const { eye } = eyeTarget(cam0, bounds);
         const reach = cam0.distance * diag;
 
@@ -134,10 +134,7 @@ test('the fly camera turns about the eye: a drag, the arrows; the wheel moves fo
         await page.mouse.up();
         const perPixel = cam0.fov / box.height;
         let yaw = cam0.yaw + 60 * perPixel, pitch = cam0.pitch - 30 * perPixel;
-        const lookAt = (y, p) => {
-            const dir = [Math.cos(rad(p)) * Math.sin(rad(y)), Math.sin(rad(p)), Math.cos(rad(p)) * Math.cos(rad(y))];
-            return { eye, target: sub(eye, mul(dir, reach)) };
-        };
+        const lookAt = (y, p) => ({ eye, target: sub(eye, mul(orbitDir(y, p), reach)) });
         let cam = await waitCamera(page, lookAt(yaw, pitch));
         const turned = yawPitch(cam.eye, cam.target);
         assert.ok(Math.abs(turned.yaw - yaw) < 1e-3 && Math.abs(turned.pitch - pitch) < 1e-3, JSON.stringify({ turned, yaw, pitch }));
@@ -159,7 +156,7 @@ test('the fly camera turns about the eye: a drag, the arrows; the wheel moves fo
         await page.mouse.wheel(0, -100);
         const ahead = 0.1 * 0.15 * diag; // approach(exp(-0.15)): -ln(factor) * 5 steps
         cam = await waitCamera(page, { eye: add(cam.eye, mul(f, ahead)), target: add(cam.target, mul(f, ahead)) });
-        assert.ok(Math.abs(Math.sqrt(dot(sub(cam.target, cam.eye), sub(cam.target, cam.eye))) - reach) < TOL);
+        assert.ok(Math.abs(len(sub(cam.target, cam.eye)) - reach) < TOL);
         await screenshot(page, 'fly-turned');
 
         // a reload keeps the fly camera and the view
@@ -173,10 +170,7 @@ test('the fly camera turns about the eye: a drag, the arrows; the wheel moves fo
 
 test('back from Fly to Orbit, the view orbits the surface at its centre: the eye and the picture stay', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
-        await page.goto(`${d.base}/?model=cornell&spp=1&cam=fly`);
-        const cam0 = await waitFullFrame(page);
-        const bounds = await boundsOf(d.base, 'cornell');
-        const diag = Math.sqrt(dot(sub(bounds.max, bounds.min), sub(bounds.max, bounds.min)));
+        const { cam0, bounds, diag } = await openCornell(d, page, '&cam=fly');
         const start = eyeTarget(cam0, bounds);
         const forward = norm(sub(start.target, start.eye)), right = norm(cross(forward, [0, 1, 0]));
         // into the box's open side and a little to the left, so that the frame's centre shows the tall block
@@ -185,7 +179,7 @@ test('back from Fly to Orbit, the view orbits the surface at its centre: the eye
         const by = mul(add(mul(forward, 2 * 4 * STEP), mul(right, -3 * STEP)), diag);
         const { eye, target } = await waitCamera(page, { eye: add(start.eye, by), target: add(start.target, by) });
         const t = bruteNearest(objTriangles(path.join(repo, 'models', 'cornell.obj')), eye, forward);
-        assert.ok(t !== null && t < Math.sqrt(dot(sub(target, eye), sub(target, eye))), `the line of sight meets the model at ${t}, before the fly target`);
+        assert.ok(t !== null && t < len(sub(target, eye)), `the line of sight meets the model at ${t}, before the fly target`);
 
         await page.check('#cam-orbit');
         const cam = await waitCamera(page, { eye, target: add(eye, mul(forward, t)) });
@@ -204,7 +198,7 @@ test('back from Fly to Orbit, the view orbits the surface at its centre: the eye
         }, JSON.stringify(cam), { timeout: 30000 });
         const orbited = await waitFullFrame(page);
         assert.ok(near(orbited.target, cam.target), `the orbit moved its target: ${orbited.target} vs ${cam.target}`);
-        const r = Math.sqrt(dot(sub(orbited.eye, orbited.target), sub(orbited.eye, orbited.target)));
+        const r = len(sub(orbited.eye, orbited.target));
         assert.ok(Math.abs(r - t) < 1e-3, `the eye is ${r} from the pivot, not ${t}`);
         assert.ok(!near(orbited.eye, eye), 'the drag did not orbit');
         assert.deepEqual(errors, []);

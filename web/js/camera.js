@@ -66,10 +66,22 @@ export function viewEyeTarget(bounds, view) {
  * view's distance, so that orbiting afterwards turns about a point ahead.
  */
 export function lookFromEye(bounds, view, yaw, pitch) {
+    return fromEye(bounds, view, yaw, clampPitch(pitch), view.distance);
+}
+
+/**
+ * The view with its target slid along the line of sight to `distance`
+ * diagonals from the eye: the same picture, orbited about another point.
+ */
+export function reachTo(bounds, view, distance) {
+    return fromEye(bounds, view, view.yaw, view.pitch, distance);
+}
+
+/** The view whose eye is view's and whose target lies distance diagonals from it towards yaw, pitch. */
+function fromEye(bounds, view, yaw, pitch, distance) {
     const { eye } = viewEyeTarget(bounds, view);
-    const p = clampPitch(pitch);
-    const reach = view.distance * boundsFrame(bounds).diagonal;
-    return { ...view, yaw, pitch: p, target: sub(eye, scale(orbitDirection(yaw, p), reach)) };
+    const reach = distance * boundsFrame(bounds).diagonal;
+    return { ...view, yaw, pitch, distance, target: sub(eye, scale(orbitDirection(yaw, pitch), reach)) };
 }
 
 /**

@@ -3,7 +3,7 @@
 // depth, ...) so a link reopens the same frame.
 
 import * as api from './api.js';
-import { protocolOrbit, clampPitch, requestCamera, viewEyeTarget, boundsFrame, add, sub, scale, normalize, dot } from './camera.js';
+import { protocolOrbit, clampPitch, requestCamera, reachTo, boundsFrame, length } from './camera.js';
 import { Pane, rowSamples } from './view.js';
 import { attachControls, MIN_DISTANCE, MAX_DISTANCE } from './controls.js';
 import { renderStats, renderLegend, renderRay, renderRaySummary, triangles, treeLabel } from './panels.js';
@@ -507,14 +507,10 @@ class App {
         const req = { model: s.model, accel: s.accel, builder: s.builder, camera: requestCamera(model.bounds, s.view), width: 1, height: 1, x: 0, y: 0 };
         const traced = await api.traceRay(req).catch(() => null);
         if (!traced?.hit || JSON.stringify(s.view) !== asked || this.model() !== model || s.fly) return;
-        const { eye, target } = viewEyeTarget(model.bounds, s.view);
-        const forward = normalize(sub(target, eye));
-        const reach = traced.hit.t * dot(normalize(traced.ray.dir), forward) / boundsFrame(model.bounds).diagonal;
+        // the ray is the line of sight itself: its t times its length is the distance to the surface
+        const reach = (traced.hit.t * length(traced.ray.dir)) / boundsFrame(model.bounds).diagonal;
         const distance = Math.min(MAX_DISTANCE, Math.max(MIN_DISTANCE, reach));
-        this.updateView((v) => {
-            v.distance = distance;
-            v.target = add(eye, scale(forward, distance * boundsFrame(model.bounds).diagonal));
-        });
+        this.updateView((v) => Object.assign(v, reachTo(model.bounds, v, distance)));
     }
 
     viewportAspect(a) {
