@@ -204,3 +204,27 @@ test('back from Fly to Orbit, the view orbits the surface at its centre: the eye
         assert.deepEqual(errors, []);
     });
 });
+
+test('a model change frames the new model from the same direction; a distance inside it becomes the protocol\'s', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        const { models } = await fetch(`${d.base}/api/models`).then((r) => r.json());
+        const bounds = models.find((m) => m.name === 'sphere').bounds;
+        const centre = mul(add(bounds.min, bounds.max), 0.5);
+        // a flight into cornell leaves the eye a tenth of a diagonal from a target off the centre; zoomed out, 2
+        for (const [query, distance] of [['&cam=fly&dist=0.1&target=0.2,0.3,0.1', 1.307], ['&dist=2', 2]]) {
+            await openCornell(d, page, `&yaw=30&pitch=10${query}`);
+            await page.selectOption('#model', 'sphere');
+            await page.waitForFunction(() => {
+                const s = window.arbor.panes[0].shown;
+                return s && !s.quick && s.req.model === 'sphere' && !window.arbor.moving;
+            }, null, { timeout: 30000 });
+            const shown = eyeTarget(await waitFullFrame(page), bounds);
+            const want = { eye: add(centre, mul(orbitDir(30, 10), distance * diagOf(bounds))), target: centre };
+            assert.ok(near(shown.eye, want.eye) && near(shown.target, want.target),
+                `sphere shown from ${JSON.stringify(shown)}, not ${JSON.stringify(want)}`);
+            // the URL keeps the view a moment after it settles
+            await page.waitForFunction((dist) => new URL(location.href).searchParams.get('dist') === String(dist), distance);
+        }
+        assert.deepEqual(errors, []);
+    });
+});

@@ -3,7 +3,7 @@
 // depth, ...) so a link reopens the same frame.
 
 import * as api from './api.js';
-import { protocolOrbit, clampPitch, requestCamera, reachTo, boundsFrame, length } from './camera.js';
+import { protocolOrbit, clampPitch, requestCamera, reachTo, boundsFrame, length, viewOfNewModel } from './camera.js';
 import { Pane, rowSamples } from './view.js';
 import { attachControls, MIN_DISTANCE, MAX_DISTANCE } from './controls.js';
 import { renderStats, renderLegend, renderRay, renderRaySummary, triangles, treeLabel } from './panels.js';
@@ -249,7 +249,7 @@ class App {
         if (name === this.state.model && !replaced) return;
         this.state.model = name;
         $('model').value = name;
-        this.state.view.target = null;
+        this.state.view = viewOfNewModel(this.state.view);
         this.clearRay();
         for (const p of this.panes) p.clearModel();
         this.changed({ boxes: true });
