@@ -317,12 +317,15 @@ test("an upload's error stays though an earlier upload's success would hide itse
 test('many boxes: drawn once per change, one stroke per colour, not redrawn for an unchanged camera', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
         await page.addInitScript(() => {
-            window.overlayCalls = { clears: 0, strokes: 0 };
+            window.overlayCalls = { clears: 0, strokes: 0, drawn: [] };
             const proto = CanvasRenderingContext2D.prototype;
             for (const [name, key] of [['clearRect', 'clears'], ['stroke', 'strokes']]) {
                 const real = proto[name];
                 proto[name] = function (...args) {
                     if (this.canvas.classList.contains('overlay')) window.overlayCalls[key]++;
+                    // what each redraw was for, to say in a failure: the camera, canvas and boxes drawn
+                    const d = key === 'clears' && window.arbor?.panes[0]?.overlayDrawn;
+                    if (d) window.overlayCalls.drawn.push(`${d.camera} depth ${d.boxes?.data?.depth}`);
                     return real.apply(this, args);
                 };
             }
@@ -332,13 +335,14 @@ test('many boxes: drawn once per change, one stroke per colour, not redrawn for 
         await page.waitForFunction(() => window.arbor.panes[0].boxes?.data?.depth === 8);
         await afterPaint(page);
         const calls = () => page.evaluate(() => ({ ...window.overlayCalls }));
-        const reset = () => page.evaluate(() => { window.overlayCalls = { clears: 0, strokes: 0 }; });
+        const reset = () => page.evaluate(() => { window.overlayCalls = { clears: 0, strokes: 0, drawn: [] }; });
         // a new frame of the same camera: the boxes over it are the same
         await reset();
         await page.selectOption('#spp', '4');
         await waitShown(page, { spp: 4 });
         await afterPaint(page);
-        assert.deepEqual(await calls(), { clears: 0, strokes: 0 });
+        const same = await calls();
+        assert.deepEqual([same.clears, same.strokes], [0, 0], `redrawn for ${same.drawn.join('; ')}`);
         // new boxes: one redraw, a stroke per depth's colour
         await reset();
         await page.fill('#depth', '7');
@@ -349,7 +353,7 @@ test('many boxes: drawn once per change, one stroke per colour, not redrawn for 
         const n = await page.evaluate(() => window.arbor.panes[0].boxes.data.boxes.length);
         assert.ok(n > 100, `only ${n} boxes`);
         const c = await calls();
-        assert.equal(c.clears, 1);
+        assert.equal(c.clears, 1, `redrawn for ${c.drawn.join('; ')}`);
         assert.ok(c.strokes >= 1 && c.strokes <= 8, `${c.strokes} strokes for ${n} boxes of 8 depths`);
         assert.deepEqual(errors, []);
     });
