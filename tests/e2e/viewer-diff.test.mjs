@@ -205,6 +205,7 @@ test('Save PNG puts the difference under the frames (its image pixel for pixel, 
         const shown = await page.evaluate(() => ({
             title: document.getElementById('diff-title').textContent,
             ticks: [...document.querySelectorAll('#diff-ticks span')].map((s) => s.textContent),
+            note: document.getElementById('diff-note').textContent,
             rows: [...document.querySelectorAll('#diff-stats tr')].map((tr) => [tr.querySelector('th').textContent, tr.querySelector('td').textContent]),
         }));
         // the figure off: the two frames under their titles, as Save PNG saved them before the figure
@@ -225,6 +226,10 @@ test('Save PNG puts the difference under the frames (its image pixel for pixel, 
         // the page's own title, ends and figures, word for word
         assert.match(shown.title, /k-d sah − BVH median/);
         for (const t of [shown.title, ...shown.ticks, ...shown.rows.flat()]) assert.ok(drawn.includes(t), `"${t}" is not in the saved PNG`);
+        // the key's note, the 99th percentile its ends stand for included, in lines of the note's words in order
+        const note = drawn.slice(drawn.indexOf(shown.ticks[2]) + 1, drawn.indexOf(shown.rows[0][0]));
+        assert.equal(note.join(' '), shown.note, 'the saved key does not say what the page says of it');
+        assert.match(shown.note, /\(the 99th percentile\)/);
         // a figure of the view before an orbit (the new view's costs refused) is not saved under the new view's frames
         await page.check('#diff-on');
         await figureDone(page);

@@ -64,7 +64,12 @@ function figureText(reqs, s) {
     return {
         title: `${b} − ${a}: node steps + triangle tests per pixel`,
         ticks: [`−${fmt(s.scale)}`, '0', `+${fmt(s.scale)}`],
-        legend: `Blue: ${b} does less work than ${a}; red: more`,
+        // the key's words, a line each in Save PNG's key, one paragraph on the page
+        note: [
+            `Blue: ${b} does less work than ${a}; red: more;`,
+            `the ends, a difference of ${fmt(s.scale)} or more (the 99th percentile).`,
+            'Rays that touch nothing in either tree take the background.',
+        ],
         rows: [
             { key: 'mean_a', label: `Mean per pixel, ${a}`, value: fmt(s.meanA) },
             { key: 'mean_b', label: `Mean per pixel, ${b}`, value: fmt(s.meanB) },
@@ -81,7 +86,7 @@ export class CostDiff {
     constructor(app) {
         this.app = app;
         this.key = '';          // the requests whose costs are shown or on their way
-        this.shown = null;      // the figure drawn: {key, image (ImageData), stops, title, ticks, legend, rows}
+        this.shown = null;      // the figure drawn: {key, image (ImageData), stops, title, ticks, note, rows}
         this.controller = null; // aborts the costs on their way
         this.el = $('diff');
     }
@@ -187,8 +192,7 @@ export class CostDiff {
         $('diff-title').textContent = text.title;
         $('diff-bar').style.background = `linear-gradient(to right, ${STOPS.join(', ')})`;
         $('diff-ticks').innerHTML = text.ticks.map((t, i) => `<span style="left:${i * 50}%">${esc(t)}</span>`).join('');
-        $('diff-note').textContent = `${text.legend}; the ends, a difference of ${fmt(s.scale)} or more (the 99th percentile). ` +
-            'Rays that touch nothing in either tree take the background.';
+        $('diff-note').textContent = text.note.join(' ');
         $('diff-stats').innerHTML = `<tbody>${text.rows.map((r) =>
             `<tr data-key="${r.key}"><th scope="row">${esc(r.label)}</th><td>${esc(r.value)}</td></tr>`).join('')}</tbody>`;
         return { image: img, stops: STOPS, ...text };

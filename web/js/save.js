@@ -17,8 +17,8 @@ const TITLE_FONT = '600 15px system-ui, sans-serif';
 /** Text colours on background bg (0..1), the page's: light on a dark one, dark on a light one. */
 const inkOn = (bg) => (bg[0] + bg[1] + bg[2] < 1.5 ? { text: '#e6e8ec', muted: '#9aa3b2' } : { text: '#1b1f24', muted: '#5a6270' });
 
-/** Lines the difference's key and figures take beside its image: the colour bar, its ends, its legend, the figures. */
-const keyRows = (fig) => 3 + fig.rows.length;
+/** Lines the difference's key and figures take beside its image: the colour bar, its ends, its note, the figures. */
+const keyRows = (fig) => 2 + fig.note.length + fig.rows.length;
 
 /** A frame's title, as its pane names it: tree, mode, size, samples. */
 const titleOf = (req) => `${treeLabel(req)} · ${req.mode} · ${req.width}×${req.height} · ${req.spp} spp`;
@@ -73,14 +73,15 @@ function drawDiff(ctx, fig, y, x, width, ink) {
     });
     ctx.textAlign = 'left';
     ctx.fillStyle = ink.muted;
-    ctx.fillText(fig.legend, x, mid(2), width);
+    fig.note.forEach((line, i) => ctx.fillText(line, x, mid(2 + i), width));
+    const first = 2 + fig.note.length;
     fig.rows.forEach((r, i) => {
         const valueWidth = ctx.measureText(r.value).width;
         ctx.fillStyle = ink.muted;
-        ctx.fillText(r.label, x, mid(3 + i), width - valueWidth - PAD_PX);
+        ctx.fillText(r.label, x, mid(first + i), width - valueWidth - PAD_PX);
         ctx.fillStyle = ink.text;
         ctx.textAlign = 'right';
-        ctx.fillText(r.value, x + width, mid(3 + i));
+        ctx.fillText(r.value, x + width, mid(first + i));
         ctx.textAlign = 'left';
     });
 }
