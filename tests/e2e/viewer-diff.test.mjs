@@ -128,6 +128,32 @@ test('a daemon that refuses the costs is quoted under the figure, and not asked 
     });
 });
 
+test('Save PNG beside small frames: the difference\'s key in a wider column, and no line squeezed (a smaller font instead)', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await page.goto(`${d.base}/?model=cornell&accel=bvh&builder=median&split=kd:sah&diff=1&spp=1&res=320x240`);
+        await waitFullFrame(page, 0, 60000);
+        await waitFullFrame(page, 1, 60000);
+        await figureDone(page);
+        // every line drawn, with the width it is given and the width it takes
+        await page.evaluate(() => {
+            const fillText = CanvasRenderingContext2D.prototype.fillText;
+            window.savedText = [];
+            CanvasRenderingContext2D.prototype.fillText = function (text, x, y, maxWidth) {
+                window.savedText.push({ text: String(text), maxWidth, width: this.measureText(text).width });
+                return fillText.call(this, text, x, y, maxWidth);
+            };
+        });
+        const file = await savePNG(page, 'saved-diff-small');
+        const drawn = await page.evaluate(() => window.savedText);
+        const [w, h] = pngSize(file);
+        assert.ok(w > 2 * 320 + 8, `saved ${w}×${h}: the key was left the width of a 320-pixel frame`);
+        const squeezed = drawn.filter((t) => t.maxWidth !== undefined && t.width > t.maxWidth + 0.5);
+        assert.deepEqual(squeezed, [], 'lines squeezed into less than their width');
+        assert.ok(drawn.some((t) => /99th percentile/.test(t.text)), 'no key drawn');
+        assert.deepEqual(errors, []);
+    });
+});
+
 /** Clicks Save PNG once it is offered; returns the PNG's bytes, kept in build/e2e/<name>.png. */
 async function savePNG(page, name) {
     await page.waitForSelector('#save-png:not([disabled])', { timeout: 60000 });

@@ -12,7 +12,24 @@ const TITLE_PX = 28;  // the band above each frame holding its title
 const GAP_PX = 8;     // between the frames, and above the difference's band
 const PAD_PX = 6;     // text from the edges of its column
 const ROW_PX = 20;    // a line of the difference's key or figures
+const KEY_MIN_PX = 440; // the key's column at least: its longest lines fit unsqueezed beside a small frame
 const TITLE_FONT = '600 15px system-ui, sans-serif';
+const TEXT_FONT = '13px system-ui, sans-serif';
+const MIN_FONT_PX = 9;
+
+/**
+ * Draws text at x, y in font (a CSS font whose size is in px), in a smaller
+ * size if it does not fit width, down to MIN_FONT_PX: a smaller font reads
+ * better than fillText's squeezing, which is left for what even that
+ * overflows. Restores the font.
+ */
+function fitText(ctx, text, x, y, width, font) {
+    const [, before, px, after] = /^(.*?)(\d+)px(.*)$/.exec(font);
+    ctx.font = font;
+    for (let size = Number(px); ctx.measureText(text).width > width && size > MIN_FONT_PX;) ctx.font = `${before}${--size}px${after}`;
+    ctx.fillText(text, x, y, width);
+    ctx.font = font;
+}
 
 /** Text colours on background bg (0..1), the page's: light on a dark one, dark on a light one. */
 const inkOn = (bg) => (bg[0] + bg[1] + bg[2] < 1.5 ? { text: '#e6e8ec', muted: '#9aa3b2' } : { text: '#1b1f24', muted: '#5a6270' });
@@ -53,8 +70,7 @@ async function frameWithOverlay(p, light) {
  */
 function drawDiff(ctx, fig, y, x, width, ink) {
     ctx.fillStyle = ink.text;
-    ctx.font = TITLE_FONT;
-    ctx.fillText(fig.title, PAD_PX, y + TITLE_PX / 2, ctx.canvas.width - 2 * PAD_PX);
+    fitText(ctx, fig.title, PAD_PX, y + TITLE_PX / 2, ctx.canvas.width - 2 * PAD_PX, TITLE_FONT);
     y += TITLE_PX;
     ctx.putImageData(fig.image, 0, y);
     x += PAD_PX;
@@ -64,7 +80,7 @@ function drawDiff(ctx, fig, y, x, width, ink) {
     fig.stops.forEach((c, i) => bar.addColorStop(i / (fig.stops.length - 1), c));
     ctx.fillStyle = bar;
     ctx.fillRect(x, mid(0) - 7, width, 14);
-    ctx.font = '13px system-ui, sans-serif';
+    ctx.font = TEXT_FONT;
     ctx.fillStyle = ink.text;
     // the ends under the bar's ends, the middle under its middle, as the page's key
     fig.ticks.forEach((t, i, all) => {
@@ -73,12 +89,12 @@ function drawDiff(ctx, fig, y, x, width, ink) {
     });
     ctx.textAlign = 'left';
     ctx.fillStyle = ink.muted;
-    fig.note.forEach((line, i) => ctx.fillText(line, x, mid(2 + i), width));
+    fig.note.forEach((line, i) => fitText(ctx, line, x, mid(2 + i), width, TEXT_FONT));
     const first = 2 + fig.note.length;
     fig.rows.forEach((r, i) => {
         const valueWidth = ctx.measureText(r.value).width;
         ctx.fillStyle = ink.muted;
-        ctx.fillText(r.label, x, mid(first + i), width - valueWidth - PAD_PX);
+        fitText(ctx, r.label, x, mid(first + i), width - valueWidth - PAD_PX, TEXT_FONT);
         ctx.fillStyle = ink.text;
         ctx.textAlign = 'right';
         ctx.fillText(r.value, x + width, mid(first + i));
@@ -91,21 +107,21 @@ async function sideBySide(frames, blobs, figure) {
     const bitmaps = await Promise.all(blobs.map((b) => createImageBitmap(b)));
     const xs = bitmaps.map((b, i) => bitmaps.slice(0, i).reduce((x, p) => x + p.width + GAP_PX, 0));
     const frameH = Math.max(...bitmaps.map((b) => b.height));
+    const keyW = Math.max(bitmaps[1].width, KEY_MIN_PX);
     const canvas = document.createElement('canvas');
-    canvas.width = xs[xs.length - 1] + bitmaps[bitmaps.length - 1].width;
+    canvas.width = Math.max(xs[xs.length - 1] + bitmaps[bitmaps.length - 1].width, figure ? xs[1] + keyW : 0);
     canvas.height = TITLE_PX + frameH + (figure ? GAP_PX + TITLE_PX + Math.max(figure.image.height, keyRows(figure) * ROW_PX) : 0);
     const ctx = canvas.getContext('2d');
     const bg = frames[0].req.background, ink = inkOn(bg);
     ctx.fillStyle = `rgb(${bg.map((c) => Math.round(c * 255)).join(',')})`;
     ctx.fillRect(0, 0, canvas.width, canvas.height);
     ctx.fillStyle = ink.text;
-    ctx.font = TITLE_FONT;
     ctx.textBaseline = 'middle';
     bitmaps.forEach((b, i) => {
-        ctx.fillText(titleOf(frames[i].req), xs[i] + PAD_PX, TITLE_PX / 2, b.width - 2 * PAD_PX);
+        fitText(ctx, titleOf(frames[i].req), xs[i] + PAD_PX, TITLE_PX / 2, b.width - 2 * PAD_PX, TITLE_FONT);
         ctx.drawImage(b, xs[i], TITLE_PX);
     });
-    if (figure) drawDiff(ctx, figure, TITLE_PX + frameH + GAP_PX, xs[1], bitmaps[1].width, ink);
+    if (figure) drawDiff(ctx, figure, TITLE_PX + frameH + GAP_PX, xs[1], keyW, ink);
     for (const b of bitmaps) b.close();
     return toPNG(canvas);
 }
