@@ -134,17 +134,7 @@ test('Save PNG beside small frames: the difference\'s key in a wider column, and
         await waitFullFrame(page, 0, 60000);
         await waitFullFrame(page, 1, 60000);
         await figureDone(page);
-        // every line drawn, with the width it is given and the width it takes
-        await page.evaluate(() => {
-            const fillText = CanvasRenderingContext2D.prototype.fillText;
-            window.savedText = [];
-            CanvasRenderingContext2D.prototype.fillText = function (text, x, y, maxWidth) {
-                window.savedText.push({ text: String(text), maxWidth, width: this.measureText(text).width });
-                return fillText.call(this, text, x, y, maxWidth);
-            };
-        });
-        const file = await savePNG(page, 'saved-diff-small');
-        const drawn = await page.evaluate(() => window.savedText);
+        const { file, drawn } = await saveAndRead(page, 'saved-diff-small');
         const [w, h] = pngSize(file);
         assert.ok(w > 2 * 320 + 8, `saved ${w}×${h}: the key was left the width of a 320-pixel frame`);
         const squeezed = drawn.filter((t) => t.maxWidth !== undefined && t.width > t.maxWidth + 0.5);
@@ -162,6 +152,23 @@ async function savePNG(page, name) {
     fs.mkdirSync(shotDir, { recursive: true });
     fs.writeFileSync(path.join(shotDir, `${name}.png`), file);
     return file;
+}
+
+/**
+ * Save PNG, with the lines of text its canvas is given recorded: each line's
+ * text, the width it was allowed (fillText's maxWidth) and the width it took.
+ */
+async function saveAndRead(page, name) {
+    await page.evaluate(() => {
+        const fillText = CanvasRenderingContext2D.prototype.fillText;
+        window.savedText = [];
+        CanvasRenderingContext2D.prototype.fillText = function (text, x, y, maxWidth) {
+            window.savedText.push({ text: String(text), maxWidth, width: this.measureText(text).width });
+            return fillText.call(this, text, x, y, maxWidth);
+        };
+    });
+    const file = await savePNG(page, name);
+    return { file, drawn: await page.evaluate(() => window.savedText) };
 }
 
 /** Width and height of a PNG's IHDR. */
@@ -217,17 +224,8 @@ test('Save PNG puts the difference under the frames (its image pixel for pixel, 
         await waitFullFrame(page, 0, 60000);
         await waitFullFrame(page, 1, 60000);
         await figureDone(page);
-        // the words the saved picture's canvas is given
-        await page.evaluate(() => {
-            const fillText = CanvasRenderingContext2D.prototype.fillText;
-            window.savedText = [];
-            CanvasRenderingContext2D.prototype.fillText = function (text, ...at) {
-                window.savedText.push(String(text));
-                return fillText.call(this, text, ...at);
-            };
-        });
-        const withFigure = await savePNG(page, 'saved-diff');
-        const drawn = await page.evaluate(() => window.savedText);
+        const saved = await saveAndRead(page, 'saved-diff');
+        const withFigure = saved.file, drawn = saved.drawn.map((t) => t.text);
         const shown = await page.evaluate(() => ({
             title: document.getElementById('diff-title').textContent,
             ticks: [...document.querySelectorAll('#diff-ticks span')].map((s) => s.textContent),
