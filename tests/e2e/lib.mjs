@@ -144,6 +144,22 @@ export async function screenshot(page, name) {
     await page.screenshot({ path: path.join(shotDir, `${name}.png`), fullPage: true });
 }
 
+/**
+ * Clicks Save PNG once it is offered; returns the PNG's bytes (kept in
+ * build/e2e/<name>.png) and the file name the page gave it.
+ */
+export async function savePNG(page, name) {
+    await page.waitForSelector('#save-png:not([disabled])', { timeout: 60000 });
+    const [download] = await Promise.all([page.waitForEvent('download'), page.click('#save-png')]);
+    const file = fs.readFileSync(await download.path());
+    fs.mkdirSync(shotDir, { recursive: true });
+    fs.writeFileSync(path.join(shotDir, `${name}.png`), file);
+    return { file, filename: download.suggestedFilename() };
+}
+
+/** Width and height of a PNG's IHDR. */
+export const pngSize = (buf) => [buf.readUInt32BE(16), buf.readUInt32BE(20)];
+
 /** Every request body to /api/render (frames; costs apart) and /api/ray the page sends, in order. */
 export function recordRequests(page) {
     const renders = [], rays = [], responses = [], costs = [];

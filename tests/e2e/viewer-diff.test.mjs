@@ -8,9 +8,7 @@
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import fs from 'node:fs';
-import path from 'node:path';
-import { withViewer, screenshot, recordRequests, waitFullFrame, postJSON, shotDir } from './lib.mjs';
+import { withViewer, screenshot, recordRequests, waitFullFrame, postJSON, savePNG, pngSize } from './lib.mjs';
 
 const T = { timeout: 240000 };
 // ColorBrewer RdBu's ends and middle, as the page's key says: blue, the second tree does less; red, more
@@ -136,23 +134,14 @@ test('Save PNG beside small frames: the difference\'s key in a wider column, and
         await figureDone(page);
         const { file, drawn } = await saveAndRead(page, 'saved-diff-small');
         const [w, h] = pngSize(file);
-        assert.ok(w > 2 * 320 + 8, `saved ${w}×${h}: the key was left the width of a 320-pixel frame`);
+        // the second frame's column, at 320 + 8, holds the key at its least width
+        assert.equal(w, 328 + 440, `saved ${w}×${h}: not the key's least width beside the 320-pixel frames`);
         const squeezed = drawn.filter((t) => t.maxWidth !== undefined && t.width > t.maxWidth + 0.5);
         assert.deepEqual(squeezed, [], 'lines squeezed into less than their width');
         assert.ok(drawn.some((t) => /99th percentile/.test(t.text)), 'no key drawn');
         assert.deepEqual(errors, []);
     });
 });
-
-/** Clicks Save PNG once it is offered; returns the PNG's bytes, kept in build/e2e/<name>.png. */
-async function savePNG(page, name) {
-    await page.waitForSelector('#save-png:not([disabled])', { timeout: 60000 });
-    const [download] = await Promise.all([page.waitForEvent('download'), page.click('#save-png')]);
-    const file = fs.readFileSync(await download.path());
-    fs.mkdirSync(shotDir, { recursive: true });
-    fs.writeFileSync(path.join(shotDir, `${name}.png`), file);
-    return file;
-}
 
 /**
  * Save PNG, with the lines of text its canvas is given recorded: each line's
@@ -167,12 +156,9 @@ async function saveAndRead(page, name) {
             return fillText.call(this, text, x, y, maxWidth);
         };
     });
-    const file = await savePNG(page, name);
+    const { file } = await savePNG(page, name);
     return { file, drawn: await page.evaluate(() => window.savedText) };
 }
-
-/** Width and height of a PNG's IHDR. */
-const pngSize = (buf) => [buf.readUInt32BE(16), buf.readUInt32BE(20)];
 
 /**
  * The saved PNG `file` against the PNG saved without the figure (`plain`)
@@ -235,7 +221,7 @@ test('Save PNG puts the difference under the frames (its image pixel for pixel, 
         // the figure off: the two frames under their titles, as Save PNG saved them before the figure
         await page.uncheck('#diff-on');
         await page.waitForFunction(() => document.getElementById('diff').hidden);
-        const plain = await savePNG(page, 'saved-diff-off');
+        const plain = (await savePNG(page, 'saved-diff-off')).file;
         assert.deepEqual(pngSize(plain), [2 * 640 + 8, 28 + 480], 'the PNG without the figure is not the two frames under their titles');
         const [w, h] = pngSize(withFigure);
         assert.equal(w, pngSize(plain)[0]);
@@ -271,12 +257,12 @@ test('Save PNG puts the difference under the frames (its image pixel for pixel, 
         await orbit('ArrowLeft');
         await page.waitForSelector('#diff-status.error:not([hidden])', { timeout: 60000 });
         assert.equal(await page.$eval('#diff', (el) => el.classList.contains('stale')), true, 'the figure is not marked stale');
-        assert.deepEqual(pngSize(await savePNG(page, 'saved-diff-stale')), pngSize(plain), 'a stale figure was saved');
-        // the next view's figure is measured, and saved
+        assert.deepEqual(pngSize((await savePNG(page, 'saved-diff-stale')).file), pngSize(plain), 'a stale figure was saved');
+        // the next view's figure is measured, and saved: a view not seen before, whose figure is new
         await page.unroute('**/api/render');
-        await orbit('ArrowRight');
+        await orbit('ArrowUp');
         await figureDone(page);
-        assert.deepEqual(pngSize(await savePNG(page, 'saved-diff-orbited')), [w, h], "the new view's figure is not saved");
+        assert.deepEqual(pngSize((await savePNG(page, 'saved-diff-orbited')).file), [w, h], "the new view's figure is not saved");
         assert.deepEqual(errors.filter((e) => !/Failed to load resource/.test(e)), []);
     });
 });

@@ -11,9 +11,7 @@
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import fs from 'node:fs';
-import path from 'node:path';
-import { withViewer, screenshot, recordRequests, waitFullFrame, framePixels, shotDir } from './lib.mjs';
+import { withViewer, screenshot, recordRequests, waitFullFrame, framePixels, savePNG, pngSize } from './lib.mjs';
 
 const T = { timeout: 240000 };
 // a request the test held and let go of, or a frame it gave up on, is logged by the browser
@@ -172,22 +170,15 @@ test("switching trees dims the old frame, says what is coming, and labels the ol
     });
 });
 
-/** Width and height of a PNG's IHDR. */
-const pngSize = (buf) => [buf.readUInt32BE(16), buf.readUInt32BE(20)];
-
 test('Save PNG saves both split panes side by side under their titles, and only a complete frame of the current view', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
         await page.goto(`${d.base}/?model=sphere&accel=bvh&builder=sah&mode=heat&spp=1&split=kd:sah`);
         await waitFullFrame(page, 0, 60000);
         await waitFullFrame(page, 1, 60000);
-        await page.waitForSelector('#save-png:not([disabled])');
-        const [download] = await Promise.all([page.waitForEvent('download'), page.click('#save-png')]);
-        assert.match(download.suggestedFilename(), /^sphere-bvh-sah-vs-kd-sah-heat-640x480\.png$/);
-        const file = fs.readFileSync(await download.path());
+        const { file, filename } = await savePNG(page, 'saved-split');
+        assert.match(filename, /^sphere-bvh-sah-vs-kd-sah-heat-640x480\.png$/);
         const [w, h] = pngSize(file);
         assert.ok(w >= 2 * 640 && h > 480, `saved ${w}×${h}`);
-        fs.mkdirSync(shotDir, { recursive: true });
-        fs.writeFileSync(path.join(shotDir, 'saved-split.png'), file);
         // each half holds its pane's frame, under a title
         const match = await page.evaluate(async ({ b64, w, h }) => {
             const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));

@@ -10,9 +10,7 @@
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import fs from 'node:fs';
-import path from 'node:path';
-import { withViewer, screenshot, waitFullFrame, overlayBox, shotDir } from './lib.mjs';
+import { withViewer, screenshot, waitFullFrame, overlayBox, savePNG } from './lib.mjs';
 
 const T = { timeout: 180000 };
 const afterPaint = (page) => page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
@@ -361,11 +359,7 @@ test('the key follows what is drawn: nothing without boxes or a ray, the depths 
  * near each of `colours` ({colour: [r, g, b]}).
  */
 async function savedOverlay(page, colours, name) {
-    await page.waitForSelector('#save-png:not([disabled])');
-    const [download] = await Promise.all([page.waitForEvent('download'), page.click('#save-png')]);
-    const file = fs.readFileSync(await download.path());
-    fs.mkdirSync(shotDir, { recursive: true });
-    fs.writeFileSync(path.join(shotDir, `${name}.png`), file);
+    const { file } = await savePNG(page, name);
     return page.evaluate(async ({ b64, colours }) => {
         const decode = async (blob) => {
             const bmp = await createImageBitmap(blob);

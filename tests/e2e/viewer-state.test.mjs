@@ -322,10 +322,13 @@ test('many boxes: drawn once per change, one stroke per colour, not redrawn for 
             for (const [name, key] of [['clearRect', 'clears'], ['stroke', 'strokes']]) {
                 const real = proto[name];
                 proto[name] = function (...args) {
-                    if (this.canvas.classList.contains('overlay')) window.overlayCalls[key]++;
-                    // what each redraw was for, to say in a failure: the camera, canvas and boxes drawn
-                    const d = key === 'clears' && window.arbor?.panes[0]?.overlayDrawn;
-                    if (d) window.overlayCalls.drawn.push(`${d.camera} depth ${d.boxes?.data?.depth}`);
+                    if (this.canvas.classList.contains('overlay')) {
+                        window.overlayCalls[key]++;
+                        // what each redraw was for, to say in a failure: the pane, its camera, canvas and boxes drawn
+                        const i = key === 'clears' ? window.arbor.panes.findIndex((p) => p.overlay === this.canvas) : -1;
+                        const d = i >= 0 && window.arbor.panes[i].overlayDrawn;
+                        if (d) window.overlayCalls.drawn.push(`pane ${i}: ${d.camera} depth ${d.boxes?.data?.depth}`);
+                    }
                     return real.apply(this, args);
                 };
             }

@@ -101,9 +101,9 @@ test('W A S D Q E move the eye and its target together, along the view, its righ
         const forward = norm(sub(target, eye)), right = norm(cross(forward, [0, 1, 0]));
 
         await page.locator('.frame').first().focus();
-        for (const key of ['KeyW', 'KeyW', 'KeyW', 'KeyD', 'Shift+KeyE', 'Alt+KeyA', 'KeyS']) await page.keyboard.press(key);
-        // forward 3 - 1 steps, right 1 - 1/4, up 4
-        const by = add(add(mul(forward, 2 * STEP), mul(right, 0.75 * STEP)), mul([0, 1, 0], 4 * STEP));
+        for (const key of ['KeyW', 'KeyW', 'KeyW', 'KeyD', 'Shift+KeyE', 'Alt+KeyA', 'KeyS', 'KeyQ']) await page.keyboard.press(key);
+        // forward 3 - 1 steps, right 1 - 1/4, up 4 - 1
+        const by = add(add(mul(forward, 2 * STEP), mul(right, 0.75 * STEP)), mul([0, 1, 0], 3 * STEP));
         const want = { eye: add(eye, mul(by, diag)), target: add(target, mul(by, diag)) };
         const cam = await waitCamera(page, want);
         assert.deepEqual(cam.up, [0, 1, 0]);
@@ -205,12 +205,12 @@ test('back from Fly to Orbit, the view orbits the surface at its centre: the eye
     });
 });
 
-test('a model change frames the new model from the same direction; a distance inside it becomes the protocol\'s', T, async () => {
+test('another model, chosen or standing in for a URL\'s missing one, is framed from the same direction; a distance inside it becomes the protocol\'s', T, async () => {
     await withViewer({}, async (d, { page, errors }) => {
         const { models } = await fetch(`${d.base}/api/models`).then((r) => r.json());
         const bounds = models.find((m) => m.name === 'sphere').bounds;
         const centre = mul(add(bounds.min, bounds.max), 0.5);
-        // a flight into cornell leaves the eye a tenth of a diagonal from a target off the centre; zoomed out, 2
+        // a fly camera a tenth of a diagonal from a target off cornell's centre, as a pivot leaves it; zoomed out, 2
         for (const [query, distance] of [['&cam=fly&dist=0.1&target=0.2,0.3,0.1', 1.307], ['&dist=2', 2]]) {
             await openCornell(d, page, `&yaw=30&pitch=10${query}`);
             await page.selectOption('#model', 'sphere');
@@ -225,6 +225,33 @@ test('a model change frames the new model from the same direction; a distance in
             // the URL keeps the view a moment after it settles
             await page.waitForFunction((dist) => new URL(location.href).searchParams.get('dist') === String(dist), distance);
         }
+        // a URL naming a model the daemon lacks: another is shown, not from the missing model's target and distance
+        await page.goto(`${d.base}/?model=nosuch&spp=1&yaw=30&pitch=10&dist=0.1&target=50,50,50`);
+        const cornell = models.find((m) => m.name === 'cornell').bounds;
+        const shown = eyeTarget(await waitFullFrame(page), cornell);
+        const middle = mul(add(cornell.min, cornell.max), 0.5);
+        const want = { eye: add(middle, mul(orbitDir(30, 10), 1.307 * diagOf(cornell))), target: middle };
+        assert.ok(near(shown.eye, want.eye) && near(shown.target, want.target),
+            `cornell shown from ${JSON.stringify(shown)}, not ${JSON.stringify(want)}`);
+        assert.deepEqual(errors, []);
+    });
+});
+
+test('back from Fly to Orbit with nothing at the frame\'s centre: the view stays as it was', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        await openCornell(d, page, '&cam=fly&target=0.1,0.2,0.3&dist=0.4');
+        const before = await page.evaluate(() => JSON.stringify(window.arbor.state.view));
+        // the daemon's answer for the line of sight, made a miss
+        await page.route('**/api/ray', async (route) => {
+            const res = await route.fetch();
+            route.fulfill({ response: res, json: { ...(await res.json()), hit: null } });
+        });
+        const answered = page.waitForResponse('**/api/ray');
+        await page.check('#cam-orbit');
+        await answered;
+        await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+        assert.equal(await page.evaluate(() => JSON.stringify(window.arbor.state.view)), before);
+        assert.equal(await page.evaluate(() => window.arbor.state.fly), false);
         assert.deepEqual(errors, []);
     });
 });

@@ -44,7 +44,7 @@ export function protocolOrbit() {
  * The view a newly chosen model opens in: the same direction and field of
  * view, about the model's centre. The distance stays unless it would put the
  * eye within half a diagonal of the centre (the sphere round the bounds), as
- * a pivot or a flight into the old model leaves it; then it is the protocol's.
+ * a pivot or a zoom into the old model leaves it; then it is the protocol's.
  */
 export function viewOfNewModel(view) {
     return { ...view, target: null, distance: view.distance >= 0.5 ? view.distance : protocolOrbit().distance };

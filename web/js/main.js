@@ -186,6 +186,7 @@ class App {
             if (this.state.model) this.notify(`There is no model "${this.state.model}" on the daemon; showing another.`, 'error');
             const names = [...this.models.keys()];
             this.state.model = names.includes('cornell') ? 'cornell' : names[0] || '';
+            this.state.view = viewOfNewModel(this.state.view); // the URL's target and distance were the missing model's
         }
         $('model').value = this.state.model;
         this.syncControls();

@@ -34,8 +34,11 @@ function fitText(ctx, text, x, y, width, font) {
 /** Text colours on background bg (0..1), the page's: light on a dark one, dark on a light one. */
 const inkOn = (bg) => (bg[0] + bg[1] + bg[2] < 1.5 ? { text: '#e6e8ec', muted: '#9aa3b2' } : { text: '#1b1f24', muted: '#5a6270' });
 
-/** Lines the difference's key and figures take beside its image: the colour bar, its ends, its note, the figures. */
-const keyRows = (fig) => 2 + fig.note.length + fig.rows.length;
+/** The rows of the difference's key beside its image: the colour bar, its ends, then its note, then its figures. */
+const KEY_HEAD_ROWS = 2;
+const noteRow = (i) => KEY_HEAD_ROWS + i;
+const figureRow = (fig, i) => noteRow(fig.note.length) + i;
+const keyRows = (fig) => figureRow(fig, fig.rows.length);
 
 /** A frame's title, as its pane names it: tree, mode, size, samples. */
 const titleOf = (req) => `${treeLabel(req)} · ${req.mode} · ${req.width}×${req.height} · ${req.spp} spp`;
@@ -89,15 +92,14 @@ function drawDiff(ctx, fig, y, x, width, ink) {
     });
     ctx.textAlign = 'left';
     ctx.fillStyle = ink.muted;
-    fig.note.forEach((line, i) => fitText(ctx, line, x, mid(2 + i), width, TEXT_FONT));
-    const first = 2 + fig.note.length;
+    fig.note.forEach((line, i) => fitText(ctx, line, x, mid(noteRow(i)), width, TEXT_FONT));
     fig.rows.forEach((r, i) => {
         const valueWidth = ctx.measureText(r.value).width;
         ctx.fillStyle = ink.muted;
-        fitText(ctx, r.label, x, mid(first + i), width - valueWidth - PAD_PX, TEXT_FONT);
+        fitText(ctx, r.label, x, mid(figureRow(fig, i)), width - valueWidth - PAD_PX, TEXT_FONT);
         ctx.fillStyle = ink.text;
         ctx.textAlign = 'right';
-        ctx.fillText(r.value, x + width, mid(first + i));
+        ctx.fillText(r.value, x + width, mid(figureRow(fig, i)));
         ctx.textAlign = 'left';
     });
 }
