@@ -8,9 +8,11 @@ HTTP_TESTS_VERBOSE=1 (say what runs). Prints Unity's lines: file:line:test:FAIL|
 on a terminal or with -v), and last "N Tests M Failures K Ignored"; exit status 1 on any failure.
 """
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 import traceback
 
@@ -96,6 +98,12 @@ def main(argv):
             probe = "%s serve --help: %s" % (harness.ARBORD, e)
 
     signal.signal(signal.SIGALRM, on_alarm)
+    # Every temp file and folder the run makes (each daemon's --models, token
+    # files, web roots) goes under one folder, removed when the run ends, so
+    # that no test leaves anything behind in /tmp however it ends; a stopped
+    # daemon's stderr stays readable until then.
+    run_tmp = tempfile.mkdtemp(prefix="arbor-http-run-")
+    tempfile.tempdir = run_tmp
     failures = ignored = 0
     start_all = time.time()
     try:
@@ -135,6 +143,7 @@ def main(argv):
     finally:
         signal.alarm(0)
         harness.kill_all_daemons()
+        shutil.rmtree(run_tmp, ignore_errors=True)
     # Daemons still running at the end (none, when the lifecycle tests ran)
     # count as one more test that fails on a sanitizer report.
     if harness.SANITIZER_REPORTS:
