@@ -1,6 +1,7 @@
 // viewer-walk.test.mjs - moving the eye through a model: W A S D Q E carry
 // the eye and its target together by a fiftieth of the bounds' diagonal (Shift
-// four times, Alt a quarter), and the fly camera turns the view about its eye.
+// four times, Alt a quarter), a right-drag pans, and the fly camera turns the
+// view about its eye.
 // Each camera the daemon rendered is checked against positions worked out here
 // from the model's bounds and the orbit convention (camera.c), not by the
 // page's own camera code.
@@ -111,6 +112,36 @@ test('W A S D Q E move the eye and its target together, along the view, its righ
         // the orbit camera still orbits, now about the moved target
         assert.match(page.url(), /[?&]target=/);
         assert.doesNotMatch(page.url(), /[?&]cam=/);
+        assert.deepEqual(errors, []);
+    });
+});
+
+test('a right-drag pans: the point the view turned about stays under the pointer, eye and target moved together', T, async () => {
+    await withViewer({}, async (d, { page, errors }) => {
+        const { cam0, bounds } = await openCornell(d, page, '');
+        const start = eyeTarget(cam0, bounds);
+        const box = await page.locator('.frame').first().boundingBox();
+        const cx = box.x + box.width / 2, cy = box.y + box.height / 2;
+        await page.mouse.move(cx, cy);
+        await page.mouse.down({ button: 'right' });
+        for (let i = 1; i <= 6; i++) await page.mouse.move(cx + 10 * i, cy + 5 * i);
+        await page.mouse.up({ button: 'right' });
+        await page.waitForFunction((c0) => {
+            const c = document.querySelector('canvas.image[data-pane="0"]');
+            return c.dataset.frame === 'full' && !window.arbor.moving && c.dataset.camera !== c0;
+        }, JSON.stringify(cam0), { timeout: 30000 });
+        const cam = await waitFullFrame(page);
+        const { eye, target } = eyeTarget(cam, bounds);
+        // the old target, projected through the new camera (vertical fov over the frame's height), lies where the pointer let go
+        const f = norm(sub(target, eye)), r = norm(cross(f, [0, 1, 0])), u = cross(r, f);
+        const rel = sub(start.target, eye), depth = dot(rel, f);
+        const pxPerUnit = box.height / 2 / Math.tan(rad(cam.fov) / 2);
+        const x = box.width / 2 + (dot(rel, r) / depth) * pxPerUnit, y = box.height / 2 - (dot(rel, u) / depth) * pxPerUnit;
+        assert.ok(Math.abs(x - (box.width / 2 + 60)) < 0.05 && Math.abs(y - (box.height / 2 + 30)) < 0.05,
+            `the old target is at (${x}, ${y}) in the frame, not (${box.width / 2 + 60}, ${box.height / 2 + 30})`);
+        // the view only moved: the eye kept its offset from the target
+        assert.ok(near(sub(eye, target), sub(start.eye, start.target)), `eye - target ${sub(eye, target)}, was ${sub(start.eye, start.target)}`);
+        assert.match(page.url(), /[?&]target=/);
         assert.deepEqual(errors, []);
     });
 });

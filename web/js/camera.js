@@ -95,16 +95,24 @@ function fromEye(bounds, view, yaw, pitch, distance) {
 }
 
 /**
- * The view moved, eye and target together, by forward along the line of
- * sight, right along the image's right and up along the world's up, each in
- * units of the bounds' diagonal (so a step means the same on every model).
+ * The view moved, eye and target together, by the world vector
+ * offset(basis, diagonal) returns: basis is the view's (forward, right and
+ * up of the image), diagonal the bounds'.
  */
-export function moveView(bounds, view, forward, right, up) {
+export function shiftView(bounds, view, offset) {
     const { eye, target } = viewEyeTarget(bounds, view);
     const basis = lookAt(eye, target, WORLD_UP, view.fov, 1, 1);
-    const { diagonal } = boundsFrame(bounds);
-    const by = add(add(scale(basis.forward, forward), scale(basis.right, right)), scale(WORLD_UP, up));
-    return { ...view, target: add(target, scale(by, diagonal)) };
+    return { ...view, target: add(target, offset(basis, boundsFrame(bounds).diagonal)) };
+}
+
+/**
+ * The view moved by forward along the line of sight, right along the
+ * image's right and up along the world's up, each in units of the bounds'
+ * diagonal (so a step means the same on every model).
+ */
+export function moveView(bounds, view, forward, right, up) {
+    return shiftView(bounds, view, (basis, diagonal) =>
+        scale(add(add(scale(basis.forward, forward), scale(basis.right, right)), scale(WORLD_UP, up)), diagonal));
 }
 
 /**

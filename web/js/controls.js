@@ -8,7 +8,7 @@
 // about its eye and move it forward instead of orbiting and zooming.
 
 import {
-    boundsFrame, clampPitch, lookAt, lookFromEye, moveView, viewEyeTarget, add, scale, WORLD_UP,
+    clampPitch, lookFromEye, moveView, shiftView, add, scale,
 } from './camera.js';
 
 const CLICK_SLOP = 4;        // px a press may move and still be a click
@@ -80,14 +80,11 @@ export function attachControls(app, frameEl, pane) {
         const model = app.model();
         if (!model) return;
         const h = size().height || 1;
-        app.updateView((v) => {
-            const { eye, target } = viewEyeTarget(model.bounds, v);
-            const basis = lookAt(eye, target, WORLD_UP, v.fov, 1, 1);
-            const { diagonal } = boundsFrame(model.bounds);
+        // the image's up, not the world's: the point under the pointer stays under it
+        app.updateView((v) => Object.assign(v, shiftView(model.bounds, v, (basis, diagonal) => {
             const perPixel = (2 * v.distance * diagonal * Math.tan((v.fov * Math.PI) / 360)) / h;
-            const moved = add(scale(basis.right, -dx * perPixel), scale(basis.up, dy * perPixel));
-            v.target = add(target, moved);
-        });
+            return add(scale(basis.right, -dx * perPixel), scale(basis.up, dy * perPixel));
+        })));
     }
 
     function zoom(factor) {
