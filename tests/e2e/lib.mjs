@@ -197,6 +197,9 @@ export async function waitFullFrame(page, index = 0, timeout = 30000) {
     return page.$eval(sel, (c) => JSON.parse(c.dataset.camera));
 }
 
+/** Resolves after the page has painted twice: whatever the last change scheduled is drawn. */
+export const afterPaint = (page) => page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+
 /**
  * Pixels of pane `index`'s frame canvas: size, a hash, the number of distinct
  * colours, and the bounding box of pixels that differ from bg (or from the

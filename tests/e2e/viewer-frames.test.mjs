@@ -11,12 +11,11 @@
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { withViewer, screenshot, recordRequests, waitFullFrame, framePixels, savePNG, pngSize } from './lib.mjs';
+import { withViewer, screenshot, recordRequests, waitFullFrame, framePixels, savePNG, pngSize, afterPaint } from './lib.mjs';
 
 const T = { timeout: 240000 };
 // a request the test held and let go of, or a frame it gave up on, is logged by the browser
 const unprovoked = (errors) => errors.filter((e) => !/Failed to load resource/.test(e));
-const afterPaint = (page) => page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
 const THREADS = 2;
 
 /** Holds every frame request (PNG, not format=json) until let go: held[i].continue(). */

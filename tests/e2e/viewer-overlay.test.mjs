@@ -10,10 +10,9 @@
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { withViewer, screenshot, waitFullFrame, overlayBox, savePNG } from './lib.mjs';
+import { withViewer, screenshot, waitFullFrame, overlayBox, savePNG, afterPaint } from './lib.mjs';
 
 const T = { timeout: 180000 };
-const afterPaint = (page) => page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
 
 /** Waits for pane 0's boxes of `depth`, and a full frame under them, drawn. */
 async function boxesShown(page, depth) {

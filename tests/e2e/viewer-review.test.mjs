@@ -10,10 +10,9 @@
 
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
-import { withViewer, screenshot, recordRequests, waitFullFrame, postJSON } from './lib.mjs';
+import { withViewer, screenshot, recordRequests, waitFullFrame, postJSON, afterPaint } from './lib.mjs';
 
 const T = { timeout: 180000 };
-const afterPaint = (page) => page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
 const isBoxes = (url) => new URL(url).pathname.endsWith('/boxes');
 const depthOf = (url) => new URL(url).searchParams.get('depth');
 

@@ -7,7 +7,7 @@
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import {
-    withViewer, screenshot, recordRequests, waitFullFrame, framePixels, overlayBox,
+    withViewer, screenshot, recordRequests, waitFullFrame, framePixels, overlayBox, afterPaint,
 } from './lib.mjs';
 
 const T = { timeout: 180000 };
@@ -37,8 +37,6 @@ function waitShown(page, want, timeout = 30000) {
         return s && !s.quick && Object.entries(w).every(([k, v]) => s.req[k] === v);
     }, want, { timeout });
 }
-
-const afterPaint = (page) => page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
 
 async function upload(page, name, text) {
     await page.setInputFiles('#file-input', { name, mimeType: 'text/plain', buffer: Buffer.from(text) });
