@@ -2,7 +2,8 @@
  * bvh.c - the bounding volume hierarchy as a tree kind: its arbor_accel_ops
  * table, the tree's memory and bytes, building it (the binary tree, then the
  * wide tree collapsed from it) and its validator. The layouts are described
- * in bvh_internal.h, the builders in bvh_build.c, the wide tree in
+ * in bvh_internal.h, the builders in bvh_build.c (their splits in
+ * bvh_split.c and bvh_sah.c, which only bvh_build.c calls), the wide tree in
  * bvh_wide.c, its statistics in bvh_wide_stats.c and the traversal in
  * bvh_traverse.c; none of those calls another, only this file calls them.
  *

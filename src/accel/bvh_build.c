@@ -1,7 +1,9 @@
 /*
  * bvh_build.c - the BVH builders: spatial median, object median, object mean
  * and binned SAH, one top-down recursion that differs only in where it
- * splits a node (choose_split).
+ * splits a node (choose_split). The splits themselves are bvh_split.c's
+ * (partitions, the simple builders' planes) and bvh_sah.c's (the SAH's);
+ * what the three files share is bvh_builder.h.
  *
  * The build works on an array of triangle references (bvh_prim: a
  * triangle's box and its index, 32 bytes) that it partitions in place, so a
@@ -32,7 +34,7 @@
  *            when splitting costs more than intersecting its triangles (and
  *            it is small enough), or when it fits one pack of the wide tree
  *            and its children would not make that tree cheaper
- *            (sah_pack_stays_leaf). The partition then sends each triangle to
+ *            (bvh_sah_pack_stays_leaf). The partition then sends each triangle to
  *            the side of its bin, computed as the binning computed it, so the
  *            split made is exactly the one costed (a plane position derived
  *            from the bin edge could round a centroid into the other side).
@@ -60,15 +62,11 @@
  * one pass over the triangles left, and the build then fails.
  */
 #include <assert.h>
-#include <emmintrin.h>
-#ifdef __SSE4_1__
-#include <smmintrin.h>
-#endif
 #include <stdlib.h>
 #include <string.h>
 
 #include "arbor/sys.h"
-#include "bvh_internal.h"
+#include "bvh_builder.h"
 
 /* Defaults (arbor_build_opts fields that are 0). The simple builders split
  * down to BVH_SIMPLE_LEAF triangles; the SAH builder decides by cost but
@@ -76,17 +74,6 @@
  * and intersection are what the sah_cost statistic uses too. */
 #define BVH_SIMPLE_LEAF 4
 #define BVH_SAH_LEAF 8
-#define BVH_SAH_BINS 32
-#define BVH_SAH_MIN_BINS 8
-/* A bin per 4 triangles, against the rule before (a bin per triangle, at
- * least 16 and at most 32, so nodes of 17 to 127 triangles now have fewer):
- * at 1 thread, medians of 11 builds (dragon 5) of arbor_accel_build in a
- * loop, two rounds alternating with the parent, bunny 24.4 and 27.8 -> 22.2
- * and 21.8 ms, dragon 373 and 411 -> 330 and 330; the wide trees' SAH cost
- * 0.05-0.8% more (castle 10.31 -> 10.39, sponza 18.67 -> 18.80, dragon
- * 15.011 -> 15.020), their rays within the VM's noise (docs/BENCH.md). */
-#define BVH_SAH_TRIS_PER_BIN 4
-#define BVH_SAH_EXACT_TRIS 16
 #define BVH_COST_TRAVERSE 1.0f
 #define BVH_COST_INTERSECT 1.0f
 /* A node forks into a parallel pair only if it has this many triangles, and
@@ -99,49 +86,6 @@
  * within noise of 3 on bunny and sponza. */
 #define BVH_FORK_MIN_TRIS 8192
 #define BVH_FORK_EXTRA_LEVELS 3
-/* Top-level nodes of at least BVH_PARALLEL_PASS_TRIS (bvh_internal.h) bin
- * in at most this many parallel parts. */
-#define BVH_BIN_PARTS 8
-/* Nodes of at least this many triangles bin into two sets (bins_fill): in
- * smaller ones clearing and merging the second set would cost more than the
- * shorter chains save. 64 and 1024 measured the same as 256. */
-#define BVH_BIN_PAIR_TRIS 256
-
-/* A triangle reference: the triangle's box, with its mesh index in the
- * fourth lane of lo, where a 4-wide load of lo finds it and box arithmetic
- * ignores it (see centroid2). */
-typedef struct {
-    float lo[3];
-    uint32_t tri;
-    float hi[3];
-    float zero; /* 0 */
-} bvh_prim;
-
-_Static_assert(sizeof(bvh_prim) == 32, "a reference is half a cache line");
-
-/* A box as the builder keeps it, one SSE register per corner; the fourth
- * lane means nothing. */
-typedef struct {
-    __m128 lo, hi;
-} build_box;
-
-/* What a node's parent tells it about its range of references: the box of
- * their triangles and the box of their doubled centroids. */
-typedef struct {
-    build_box box, cbox;
-} range_box;
-
-typedef struct {
-    arbor_builder builder;
-    uint32_t max_leaf;       /* a node with more triangles is always split */
-    uint32_t max_depth;      /* a node at this depth is always a leaf */
-    uint32_t fork_depth;     /* nodes above this depth may fork */
-    float cost_traverse, cost_intersect;
-    bvh_prim *prims;         /* the triangle references; each task owns a range */
-    uint32_t *tri_index;     /* leaf order, written by the leaves */
-    bvh_node *nodes;         /* each task owns a range of slots */
-    accel_run *run;          /* threads and cancel flag */
-} bvh_builder;
 
 /* What a subtree's build adds to the statistics; parallel tasks each keep
  * their own and the parent adds them up after the join. */
@@ -151,606 +95,12 @@ typedef struct {
     double inner_area, leaf_area;  /* sum of A(n) over inner nodes; of A(l) N(l) over leaves */
 } bvh_tally;
 
-static inline build_box box_empty(void)
-{
-    build_box b = {_mm_set1_ps(INFINITY), _mm_set1_ps(-INFINITY)};
-    return b;
-}
-
-/* The box in the first operand, so that a NaN corner spreads (minps returns
- * its second operand when either is NaN), as arbor_minf does. */
-static inline void box_grow(build_box *b, __m128 lo, __m128 hi)
-{
-    b->lo = _mm_min_ps(b->lo, lo);
-    b->hi = _mm_max_ps(b->hi, hi);
-}
-
-static inline void box_merge(build_box *b, const build_box *with)
-{
-    box_grow(b, with->lo, with->hi);
-}
-
-/* Surface area of a non-empty box, 2 ((x y + y z) + z x) as aabb_area
- * computes it, in registers: the SAH sweeps call this for every bin. */
-static inline float box_area(const build_box *b)
-{
-    __m128 d = _mm_sub_ps(b->hi, b->lo);
-    __m128 p = _mm_mul_ps(d, _mm_shuffle_ps(d, d, _MM_SHUFFLE(3, 0, 2, 1))); /* x y, y z, z x */
-    __m128 sum = _mm_add_ss(_mm_add_ss(p, _mm_shuffle_ps(p, p, _MM_SHUFFLE(1, 1, 1, 1))),
-                            _mm_shuffle_ps(p, p, _MM_SHUFFLE(2, 2, 2, 2)));
-    return 2.0f * _mm_cvtss_f32(sum);
-}
-
-static inline __m128 prim_lo(const bvh_prim *p)
-{
-    return _mm_loadu_ps(p->lo);
-}
-
-static inline __m128 prim_hi(const bvh_prim *p)
-{
-    return _mm_loadu_ps(p->hi);
-}
-
-/* lo + hi: twice the centroid, with 0 in the fourth lane (lo's lane holds
- * the triangle index's bits, which as a float may be a denormal or NaN). */
-static inline __m128 centroid2(__m128 lo, __m128 hi)
-{
-    const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
-    return _mm_add_ps(_mm_and_ps(lo, xyz), hi);
-}
-
-static inline float centroid_axis(const bvh_builder *B, uint32_t i, int axis)
-{
-    return B->prims[i].lo[axis] + B->prims[i].hi[axis];
-}
-
 static uint32_t ceil_log2(uint32_t n)
 {
     uint32_t k = 0;
     while (k < 32 && ((uint64_t)1 << k) < n)
         k++;
     return k;
-}
-
-/* The boxes of prims[b, e): for the splits that do not compute them as they
- * partition (median, halving by count). */
-static void range_bounds(const bvh_builder *B, uint32_t b, uint32_t e, range_box *r)
-{
-    r->box = r->cbox = box_empty();
-    for (uint32_t i = b; i < e; i++) {
-        __m128 lo = prim_lo(&B->prims[i]), hi = prim_hi(&B->prims[i]), c = centroid2(lo, hi);
-        box_grow(&r->box, lo, hi);
-        box_grow(&r->cbox, c, c);
-    }
-}
-
-static inline void prim_swap(bvh_prim *p, uint32_t i, uint32_t j)
-{
-    bvh_prim t = p[i];
-    p[i] = p[j];
-    p[j] = t;
-}
-
-/* Moves the references of prims[b, e) whose centroid lies below pos on axis
- * to the front and returns where the others start: quickselect's partition. */
-static uint32_t partition_below(const bvh_builder *B, uint32_t b, uint32_t e, int axis, float pos)
-{
-    uint32_t m = b;
-    /* invariant: prims[b, m) below pos, prims[m, i) not below. Every element
-     * is swapped and m advances by the comparison's value: no branch on it,
-     * which would be mispredicted half the time near the root. */
-    for (uint32_t i = b; i < e; i++) {
-        uint32_t below = centroid_axis(B, i, axis) < pos;
-        prim_swap(B->prims, i, m);
-        m += below;
-    }
-    return m;
-}
-
-static float median_of_three(float a, float b, float c)
-{
-    return arbor_maxf(arbor_minf(a, b), arbor_minf(arbor_maxf(a, b), c));
-}
-
-/* Quickselect (Hoare's FIND): reorders prims[b, e) so that the reference
- * with the k-th smallest centroid on axis is at k, none larger before it and
- * none smaller after it. Expected O(e - b). Each round splits the range
- * three ways (below, equal to, above the pivot), so equal centroids cannot
- * stall it. */
-static void select_nth(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t k, int axis)
-{
-    while (e - b > 1) {
-        float pivot = median_of_three(centroid_axis(B, b, axis), centroid_axis(B, b + (e - b) / 2, axis),
-                                      centroid_axis(B, e - 1, axis));
-        uint32_t lt = partition_below(B, b, e, axis, pivot);
-        uint32_t le = partition_below(B, lt, e, axis, nextafterf(pivot, INFINITY));
-        if (k < lt)
-            e = lt;
-        else if (k >= le)
-            b = le;
-        else
-            return;
-        if (lt == le)
-            return; /* the pivot was NaN (a NaN vertex): no order to find */
-    }
-}
-
-/* Splits prims[b, e) at m and measures both halves. */
-static uint32_t split_at(const bvh_builder *B, uint32_t b, uint32_t m, uint32_t e, range_box kids[2])
-{
-    range_bounds(B, b, m, &kids[0]);
-    range_bounds(B, m, e, &kids[1]);
-    return m;
-}
-
-/* The object median split on axis: both halves non-empty for e - b >= 2. */
-static uint32_t split_median(const bvh_builder *B, uint32_t b, uint32_t e, int axis, range_box kids[2])
-{
-    uint32_t m = b + (e - b) / 2;
-    select_nth(B, b, e, m, axis);
-    return split_at(B, b, m, e, kids);
-}
-
-static float centroid_mean(const bvh_builder *B, uint32_t b, uint32_t e, int axis)
-{
-    double sum = 0.0;
-    for (uint32_t i = b; i < e; i++)
-        sum += centroid_axis(B, i, axis);
-    return (float)(sum / (double)(e - b));
-}
-
-/* The bins of a node: nbins bins per axis over its centroid box, bin
- * (c - lo) * scale clamped to [0, nbins - 1]. */
-typedef struct {
-    __m128 lo, scale, last;
-    uint32_t nbins;
-} bin_grid;
-
-/* The bins of centroid c on the three axes (lane 3 meaningless), without
- * branches; maxps returns 0 for a NaN, which lands in bin 0. The binning and
- * the partition both use this, so they agree on every triangle's side. */
-static inline __m128i bin_of(const bin_grid *g, __m128 c)
-{
-    __m128 f = _mm_mul_ps(_mm_sub_ps(c, g->lo), g->scale);
-    return _mm_cvttps_epi32(_mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), g->last));
-}
-
-/* A split to partition by: a side per triangle, either by the bin of its
- * centroid on axis (left: bins below limit_bin, which is the costed plane
- * + 1) or by its position (left: below limit_pos), both in every lane. */
-typedef struct {
-    int axis;
-    bool by_bin;
-    const bin_grid *grid;
-    __m128i limit_bin;
-    __m128 limit_pos;
-} split_rule;
-
-static inline uint32_t goes_left(const split_rule *r, __m128 c)
-{
-    __m128 below = r->by_bin ? _mm_castsi128_ps(_mm_cmplt_epi32(bin_of(r->grid, c), r->limit_bin))
-                             : _mm_cmplt_ps(c, r->limit_pos);
-    return (uint32_t)_mm_movemask_ps(below) >> r->axis & 1;
-}
-
-/* mask ? a : b, lane by lane (mask lanes all ones or all zeros). */
-static inline __m128 select4(__m128 mask, __m128 a, __m128 b)
-{
-#ifdef __SSE4_1__
-    return _mm_blendv_ps(b, a, mask);
-#else
-    return _mm_or_ps(_mm_and_ps(mask, a), _mm_andnot_ps(mask, b));
-#endif
-}
-
-/* Grows the side the mask selects by a reference's centroid and, when
- * `boxes`, its box: the other side grows by an empty box, so neither needs
- * a branch. */
-static inline void side_grow(range_box *r, __m128 mask, __m128 lo, __m128 hi, __m128 c, bool boxes)
-{
-    const __m128 inf = _mm_set1_ps(INFINITY), ninf = _mm_set1_ps(-INFINITY);
-    if (boxes)
-        box_grow(&r->box, select4(mask, lo, inf), select4(mask, hi, ninf));
-    box_grow(&r->cbox, select4(mask, c, inf), select4(mask, c, ninf));
-}
-
-/* Moves the references of prims[b, e) that go left by rule to the front,
- * computing both sides' centroid boxes on the way and, when `boxes`, their
- * boxes (else left empty); returns where the right side starts (b or e
- * when one side is empty; kids are then meaningless). Inlined with a
- * constant `boxes` into its two callers. */
-static inline uint32_t partition_sides(const bvh_builder *B, uint32_t b, uint32_t e, const split_rule *rule,
-                                       range_box kids[2], bool boxes)
-{
-    bvh_prim *p = B->prims;
-    range_box left = {box_empty(), box_empty()}, right = left;
-    uint32_t m = b;
-    /* invariant: prims[b, m) go left, prims[m, i) go right. Every element
-     * is swapped and m advances by the side, without a branch on it (see
-     * partition_below); the swap moves the registers already loaded, whole
-     * 16-byte halves, which later loads can take straight from the stores. */
-    for (uint32_t i = b; i < e; i++) {
-        __m128 lo = prim_lo(&p[i]), hi = prim_hi(&p[i]), c = centroid2(lo, hi);
-        uint32_t goes = goes_left(rule, c);
-        __m128 mask = _mm_castsi128_ps(_mm_set1_epi32(-(int32_t)goes));
-        side_grow(&left, mask, lo, hi, c, boxes);
-        side_grow(&right, _mm_xor_ps(mask, _mm_castsi128_ps(_mm_set1_epi32(-1))), lo, hi, c, boxes);
-        __m128 mlo = prim_lo(&p[m]), mhi = prim_hi(&p[m]);
-        _mm_storeu_ps(p[m].lo, lo);
-        _mm_storeu_ps(p[m].hi, hi);
-        _mm_storeu_ps(p[i].lo, mlo);
-        _mm_storeu_ps(p[i].hi, mhi);
-        m += goes;
-    }
-    kids[0] = left;
-    kids[1] = right;
-    return m;
-}
-
-/* The partition of the splits that know nothing of the sides' boxes. */
-static uint32_t partition(const bvh_builder *B, uint32_t b, uint32_t e, const split_rule *rule, range_box kids[2])
-{
-    return partition_sides(B, b, e, rule, kids, true);
-}
-
-/* The bins of the three axes: boxes and triangle counts. */
-typedef struct {
-    build_box box[3][BVH_SAH_BINS];
-    uint32_t count[3][BVH_SAH_BINS];
-} sah_bins;
-
-static void bins_clear(sah_bins *s, uint32_t nbins)
-{
-    for (int k = 0; k < 3; k++)
-        for (uint32_t j = 0; j < nbins; j++)
-            s->box[k][j] = box_empty();
-    memset(s->count, 0, sizeof s->count);
-}
-
-static void bins_merge(sah_bins *to, const sah_bins *from, uint32_t nbins)
-{
-    for (int k = 0; k < 3; k++)
-        for (uint32_t j = 0; j < nbins; j++) {
-            box_merge(&to->box[k][j], &from->box[k][j]);
-            to->count[k][j] += from->count[k][j];
-        }
-}
-
-static inline void bin_grow(sah_bins *s, int axis, uint32_t j, __m128 lo, __m128 hi)
-{
-    box_grow(&s->box[axis][j], lo, hi);
-    s->count[axis][j]++;
-}
-
-static inline void bin_prim(sah_bins *s, const bin_grid *g, const bvh_prim *p)
-{
-    __m128 lo = prim_lo(p), hi = prim_hi(p);
-    __m128i j = bin_of(g, centroid2(lo, hi));
-    /* the three axes written out, their bins taken from the register */
-    bin_grow(s, 0, (uint32_t)_mm_cvtsi128_si32(j), lo, hi);
-    bin_grow(s, 1, (uint32_t)_mm_cvtsi128_si32(_mm_shuffle_epi32(j, _MM_SHUFFLE(1, 1, 1, 1))), lo, hi);
-    bin_grow(s, 2, (uint32_t)_mm_cvtsi128_si32(_mm_shuffle_epi32(j, _MM_SHUFFLE(2, 2, 2, 2))), lo, hi);
-}
-
-/* Bins prims[b, e) into s, cleared: the build's hottest loop. The three
- * axes' bins come from one SSE computation and the reference is loaded once
- * for the three bins it grows. A node of BVH_BIN_PAIR_TRIS or more bins
- * alternate references into two sets, merged at the end (the same bins:
- * min, max and counts do not depend on the order). Each update of a bin
- * reads what the one before wrote, so references that fall in one bin wait
- * on each other; they do that on a wall's or floor's triangles, whose
- * centroids share a coordinate, and on the mesh's runs of neighbours. Two
- * sets halve those chains. 1 thread, median of 15 builds pinned to a core,
- * four rounds alternating with the parent: sponza 21.5-24.3 -> 19.0-21.8 ms,
- * bunny 21.8-24.7 -> 20.8-24.1, dragon (three rounds of 5) 373-377 -> 325-351.
- * Written as a loop over an array of sets (four, or two), it measured
- * slower than the parent; written out, as here, faster. */
-static void bins_fill(sah_bins *s, const bin_grid *g, const bvh_prim *p, uint32_t b, uint32_t e)
-{
-    bins_clear(s, g->nbins);
-    if (e - b < BVH_BIN_PAIR_TRIS) {
-        for (uint32_t i = b; i < e; i++)
-            bin_prim(s, g, &p[i]);
-        return;
-    }
-    sah_bins other;
-    bins_clear(&other, g->nbins);
-    uint32_t i = b;
-    for (; i + 1 < e; i += 2) {
-        bin_prim(s, g, &p[i]);
-        bin_prim(&other, g, &p[i + 1]);
-    }
-    if (i < e)
-        bin_prim(s, g, &p[i]);
-    bins_merge(s, &other, g->nbins);
-}
-
-/* One part of a parallel binning: prims[b, e) into its own bins. */
-typedef struct {
-    const bvh_builder *B;
-    const bin_grid *grid;
-    uint32_t b, e;
-    sah_bins bins;
-} bin_part;
-
-/* Part number `i` of the array `parts`. */
-static void bin_part_run(void *parts, uint32_t i)
-{
-    bin_part *p = (bin_part *)parts + i;
-    bins_fill(&p->bins, p->grid, p->B->prims, p->b, p->e);
-}
-
-/* Bins prims[b, e) into s. A large node at the top levels bins in parallel
- * parts, merged in order: the same bins as one pass would fill (serially
- * when the parts' memory cannot be had). */
-static void bins_build(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, const bin_grid *g, sah_bins *s)
-{
-    uint32_t nparts = B->run->threads < BVH_BIN_PARTS ? B->run->threads : BVH_BIN_PARTS;
-    bin_part *parts = NULL;
-    if (nparts > 1 && depth < B->fork_depth && e - b >= BVH_PARALLEL_PASS_TRIS)
-        parts = malloc(nparts * sizeof *parts);
-    if (parts == NULL) {
-        bins_fill(s, g, B->prims, b, e);
-        return;
-    }
-    for (uint32_t i = 0; i < nparts; i++) {
-        parts[i].B = B;
-        parts[i].grid = g;
-        parts[i].b = b + (uint32_t)((uint64_t)(e - b) * i / nparts);
-        parts[i].e = b + (uint32_t)((uint64_t)(e - b) * (i + 1) / nparts);
-    }
-    accel_parallel(B->run, nparts, bin_part_run, parts);
-    *s = parts[0].bins;
-    for (uint32_t i = 1; i < nparts; i++)
-        bins_merge(s, &parts[i].bins, g->nbins);
-    free(parts);
-}
-
-/* The cheapest plane of one axis' bins by the sum A(l) N(l) + A(r) N(r):
- * sets *plane (the plane after bin *plane) and returns the sum, or INFINITY
- * if no plane has triangles on both sides. Planes after an empty bin split
- * the triangles like the plane before it, so only the others are tried. */
-static float sah_sweep(const build_box *box, const uint32_t *count, uint32_t nbins, uint32_t *plane)
-{
-    /* right[j], right_count[j]: A N and N of the bins after plane j */
-    float right[BVH_SAH_BINS];
-    uint32_t right_count[BVH_SAH_BINS];
-    build_box acc = box_empty();
-    uint32_t n = 0;
-    float an = 0.0f;
-    for (uint32_t j = nbins - 1; j > 0; j--) {
-        if (count[j] > 0) {
-            box_merge(&acc, &box[j]);
-            n += count[j];
-            an = box_area(&acc) * (float)n;
-        }
-        right[j - 1] = an;
-        right_count[j - 1] = n;
-    }
-    float best = INFINITY;
-    acc = box_empty();
-    n = 0;
-    for (uint32_t j = 0; j + 1 < nbins; j++) {
-        if (count[j] == 0)
-            continue;
-        box_merge(&acc, &box[j]);
-        n += count[j];
-        if (right_count[j] == 0)
-            break;
-        float cost = box_area(&acc) * (float)n + right[j];
-        if (cost < best) {
-            best = cost;
-            *plane = j;
-        }
-    }
-    return best;
-}
-
-/* Whether a node of n triangles and surface `area` stays a leaf: its best
- * split, whose children's A N add up to `split_an`, costs no less than
- * testing all its triangles, and it is small enough to be a leaf. */
-static bool sah_stays_leaf(const bvh_builder *B, float area, double split_an, uint32_t n)
-{
-    double split_cost = (double)B->cost_traverse * area + (double)B->cost_intersect * split_an;
-    double leaf_cost = (double)B->cost_intersect * area * (double)n;
-    return !(split_cost < leaf_cost) && n <= B->max_leaf;
-}
-
-/* Binned SAH over the three axes of prims[b, e), whose box has area `area`
- * and whose centroids span cbox (not a single point). Returns whether
- * splitting at the cheapest plane beats a leaf, by the cost model
- * Ct A(n) + Ci (A(l) N(l) + A(r) N(r)) against Ci A(n) N(n) (the usual one
- * multiplied through by A(n), so flat nodes need no division), and if so
- * partitions there (*m: where the right side starts; b or e when no plane
- * has triangles on both sides). A node gets a bin per BVH_SAH_TRIS_PER_BIN
- * triangles, between BVH_SAH_MIN_BINS and BVH_SAH_BINS: clearing and
- * sweeping a bin costs about as much as binning a few triangles, so small
- * nodes given a bin per triangle spent most of their time on empty bins. */
-static bool sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, float area,
-                      const build_box *cbox, range_box kids[2], uint32_t *m)
-{
-    uint32_t n = e - b;
-    bin_grid g;
-    uint32_t nbins = n / BVH_SAH_TRIS_PER_BIN;
-    g.nbins = nbins < BVH_SAH_MIN_BINS ? BVH_SAH_MIN_BINS : nbins > BVH_SAH_BINS ? BVH_SAH_BINS : nbins;
-    float lo[4], hi[4], scale[4] = {0.0f, 0.0f, 0.0f, 0.0f};
-    _mm_storeu_ps(lo, cbox->lo);
-    _mm_storeu_ps(hi, cbox->hi);
-    for (int k = 0; k < 3; k++) {
-        float ext = hi[k] - lo[k];
-        scale[k] = ext > 0.0f ? (float)g.nbins / ext : 0.0f;
-    }
-    g.lo = cbox->lo;
-    g.scale = _mm_loadu_ps(scale);
-    g.last = _mm_set1_ps((float)(g.nbins - 1));
-    sah_bins bins;
-    bins_build(B, b, e, depth, &g, &bins);
-    float best = INFINITY;
-    split_rule rule = {0, true, &g, _mm_setzero_si128(), _mm_setzero_ps()};
-    uint32_t best_plane = 0;
-    for (int k = 0; k < 3; k++) {
-        uint32_t plane = 0;
-        float cost = scale[k] > 0.0f ? sah_sweep(bins.box[k], bins.count[k], g.nbins, &plane) : INFINITY;
-        if (cost < best) {
-            best = cost;
-            best_plane = plane;
-            rule.axis = k;
-            rule.limit_bin = _mm_set1_epi32((int)plane + 1);
-        }
-    }
-    if (sah_stays_leaf(B, area, best, n))
-        return false;
-    if (best == INFINITY) {
-        *m = b;
-        return true;
-    }
-    /* The sides are the bins' on either side of the plane, so their boxes
-     * are the unions of those bins' boxes, to the bit (min and max do not
-     * round): the partition computes only the centroid boxes, which the
-     * bins do not keep (dragon, 1 thread: 357-368 -> 348 ms a build, 3 runs). */
-    *m = partition_sides(B, b, e, &rule, kids, false);
-    uint32_t costed_left = 0;
-    for (uint32_t j = 0; j < g.nbins; j++) {
-        box_merge(&kids[j > best_plane].box, &bins.box[rule.axis][j]);
-        costed_left += j <= best_plane ? bins.count[rule.axis][j] : 0;
-    }
-    /* the split made is the one costed: as many go left as the bins counted */
-    assert(*m - b == costed_left);
-    (void)costed_left;
-    return true;
-}
-
-/* A float's bits as an integer that orders as the float does (a negative
- * float's magnitude bits flipped), NaNs included in some fixed place, so
- * that sorting by it is a total order whatever the input. */
-static inline int32_t float_order_key(float f)
-{
-    uint32_t u;
-    memcpy(&u, &f, sizeof u);
-    u ^= ((uint32_t)0 - (u >> 31)) >> 1; /* a negative float: its magnitude bits flipped */
-    int32_t key;
-    memcpy(&key, &u, sizeof key);
-    return key;
-}
-
-/* order[0, n): 0 .. n - 1 by key, ties by place (n <= BVH_SAH_EXACT_TRIS,
- * key padded to a multiple of 4). Each one's place in the order is the
- * number of keys below its own plus the equal ones before it, counted four
- * at a time: no branch on the data, where an insertion sort's mispredicted
- * branches took a third of sah_split_small's time. */
-static void small_order(const int32_t *key, uint32_t n, uint8_t *order)
-{
-    __m128i k4[BVH_SAH_EXACT_TRIS / 4];
-    uint32_t quads = (n + 3) / 4, live = ((uint32_t)1 << n) - 1; /* the padding is not counted */
-    for (uint32_t q = 0; q < quads; q++)
-        k4[q] = _mm_loadu_si128((const __m128i *)(const void *)(key + 4 * q));
-    for (uint32_t i = 0; i < n; i++) {
-        __m128i ki = _mm_set1_epi32(key[i]);
-        uint32_t below = 0, equal = 0;
-        for (uint32_t q = 0; q < quads; q++) {
-            below |= (uint32_t)_mm_movemask_ps(_mm_castsi128_ps(_mm_cmplt_epi32(k4[q], ki))) << (4 * q);
-            equal |= (uint32_t)_mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(k4[q], ki))) << (4 * q);
-        }
-        uint32_t before = ((uint32_t)1 << i) - 1;
-        order[__builtin_popcount(below & live) + __builtin_popcount(equal & before)] = (uint8_t)i;
-    }
-}
-
-/* The SAH for a node of at most BVH_SAH_EXACT_TRIS triangles: every plane
- * between two neighbours in centroid order on each axis (the full object
- * SAH, which bins only approximate), by the same cost model as sah_split's,
- * and partitioning there (*m: where the right side starts, b when no plane
- * has a finite cost). Near the leaves, where most nodes are, this costs less
- * than clearing and sweeping bins, and finds planes at least as cheap.
- * only_axis >= 0 limits the search to that axis (see choose_split). */
-static bool sah_split_small(const bvh_builder *B, uint32_t b, uint32_t e, float area, int only_axis,
-                            range_box kids[2], uint32_t *m)
-{
-    uint32_t n = e - b;
-    bvh_prim *p = B->prims + b;
-    assert(n <= BVH_SAH_EXACT_TRIS);
-    /* order[k]: the node's references by centroid on axis k, ties by place */
-    uint8_t order[3][BVH_SAH_EXACT_TRIS];
-    int32_t key[BVH_SAH_EXACT_TRIS] = {0};
-    float right[BVH_SAH_EXACT_TRIS];
-    float best = INFINITY;
-    int best_axis = 0;
-    uint32_t best_count = 0;
-    int first_axis = only_axis >= 0 ? only_axis : 0, end_axis = only_axis >= 0 ? only_axis + 1 : 3;
-    for (int k = first_axis; k < end_axis; k++) {
-        for (uint32_t i = 0; i < n; i++)
-            key[i] = float_order_key(p[i].lo[k] + p[i].hi[k]);
-        small_order(key, n, order[k]);
-        /* right[i]: A N of the references from the i-th on */
-        build_box acc = box_empty();
-        for (uint32_t i = n - 1; i > 0; i--) {
-            box_grow(&acc, prim_lo(&p[order[k][i]]), prim_hi(&p[order[k][i]]));
-            right[i] = box_area(&acc) * (float)(n - i);
-        }
-        acc = box_empty();
-        for (uint32_t i = 1; i < n; i++) {
-            box_grow(&acc, prim_lo(&p[order[k][i - 1]]), prim_hi(&p[order[k][i - 1]]));
-            float cost = box_area(&acc) * (float)i + right[i];
-            if (cost < best) {
-                best = cost;
-                best_axis = k;
-                best_count = i;
-            }
-        }
-    }
-    if (sah_stays_leaf(B, area, best, n))
-        return false;
-    if (best == INFINITY) {
-        *m = b;
-        return true;
-    }
-    bvh_prim sorted[BVH_SAH_EXACT_TRIS];
-    for (uint32_t i = 0; i < n; i++)
-        sorted[i] = p[order[best_axis][i]];
-    memcpy(p, sorted, n * sizeof *p);
-    *m = split_at(B, b, b + best_count, e, kids);
-    return true;
-}
-
-/* The SAH decision for a node of two triangles whose centroids differ: the
- * only split puts one on each side, which binning on any axis where they
- * differ finds too; it is taken by the same cost model as sah_split's.
- * Returns the split index (b + 1, the triangle with the smaller centroid on
- * the first such axis first) or 0 for a leaf. Two triangles is the commonest
- * node size near the leaves, and clearing and sweeping bins for them cost
- * more than their binning. */
-static uint32_t sah_split_pair(const bvh_builder *B, uint32_t b, float area, const build_box *cbox,
-                               range_box kids[2])
-{
-    range_bounds(B, b, b + 1, &kids[0]);
-    range_bounds(B, b + 1, b + 2, &kids[1]);
-    if (sah_stays_leaf(B, area, (double)box_area(&kids[0].box) + (double)box_area(&kids[1].box), 2))
-        return 0;
-    float lo[4], hi[4];
-    _mm_storeu_ps(lo, cbox->lo);
-    _mm_storeu_ps(hi, cbox->hi);
-    int axis = hi[0] > lo[0] ? 0 : hi[1] > lo[1] ? 1 : 2;
-    if (centroid_axis(B, b + 1, axis) < centroid_axis(B, b, axis)) {
-        prim_swap(B->prims, b, b + 1);
-        range_box t = kids[0];
-        kids[0] = kids[1];
-        kids[1] = t;
-    }
-    return b + 1;
-}
-
-/* Whether a node of at most one pack of triangles and surface `area`,
- * which the SAH would split into kids, stays a leaf all the same, for the
- * wide tree rays traverse (bvh_wide.c): its whole leaf costs one pack test
- * over its area, two leaf children a pack test each over their areas, so
- * when these add up to at least its own the collapse merges the children
- * back (it could keep them only if splitting them further cost less,
- * which measured never: the wide trees' SAH costs are unchanged to four
- * digits on bunny, castle, sponza and dragon). The levels below are then
- * not built only to be undone: 12-16% of the SAH build's time. */
-static bool sah_pack_stays_leaf(const bvh_builder *B, float area, uint32_t n, const range_box kids[2])
-{
-    return n <= BVH_WIDTH && n <= B->max_leaf && box_area(&kids[0].box) + box_area(&kids[1].box) >= area;
 }
 
 /* Where the node over prims[b, e) at depth `depth`, with boxes r, splits:
@@ -766,13 +116,13 @@ static uint32_t choose_split(const bvh_builder *B, uint32_t b, uint32_t e, uint3
     _mm_storeu_ps(hi, r->cbox.hi);
     arbor_vec3 ext = vec3(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
     if (ext.x <= 0.0f && ext.y <= 0.0f && ext.z <= 0.0f) /* one centroid: any halving is as good */
-        return n > B->max_leaf ? split_at(B, b, b + n / 2, e, kids) : 0;
+        return n > B->max_leaf ? bvh_split_at(B, b, b + n / 2, e, kids) : 0;
     int axis = vec3_max_axis(ext);
     split_rule rule = {axis, false, NULL, _mm_setzero_si128(), _mm_set1_ps(0.5f * (lo[axis] + hi[axis]))};
     /* Past this depth only median splits are sure to end by BVH_MAX_DEPTH - 1:
      * each halves the count, so n triangles need ceil(log2 n) more levels. */
     if (depth + 1 + ceil_log2(n) > BVH_MAX_DEPTH - 1)
-        return split_median(B, b, e, axis, kids);
+        return bvh_split_median(B, b, e, axis, kids);
     uint32_t m;
     switch (B->builder) {
     case ARBOR_BUILD_SAH:
@@ -787,35 +137,35 @@ static uint32_t choose_split(const bvh_builder *B, uint32_t b, uint32_t e, uint3
          * Extending it to 16 triangles made the wide trees up to 1.6%
          * dearer. */
         if (n == 2)
-            m = sah_split_pair(B, b, area, &r->cbox, kids);
+            m = bvh_sah_split_pair(B, b, area, &r->cbox, kids);
         else if (!(n <= BVH_SAH_EXACT_TRIS
-                       ? sah_split_small(B, b, e, area, n <= BVH_WIDTH ? axis : -1, kids, &m)
-                       : sah_split(B, b, e, depth, area, &r->cbox, kids, &m)))
+                       ? bvh_sah_split_small(B, b, e, area, n <= BVH_WIDTH ? axis : -1, kids, &m)
+                       : bvh_sah_split(B, b, e, depth, area, &r->cbox, kids, &m)))
             return 0;
-        if (m == 0 || (m != b && m != e && sah_pack_stays_leaf(B, area, n, kids)))
+        if (m == 0 || (m != b && m != e && bvh_sah_pack_stays_leaf(B, area, n, kids)))
             return 0;
         break;
     case ARBOR_BUILD_SPATIAL:
         if (n <= B->max_leaf)
             return 0;
-        m = partition(B, b, e, &rule, kids);
+        m = bvh_partition(B, b, e, &rule, kids);
         break;
     case ARBOR_BUILD_MEAN:
         if (n <= B->max_leaf)
             return 0;
-        rule.limit_pos = _mm_set1_ps(centroid_mean(B, b, e, axis));
-        m = partition(B, b, e, &rule, kids);
+        rule.limit_pos = _mm_set1_ps(bvh_centroid_mean(B, b, e, axis));
+        m = bvh_partition(B, b, e, &rule, kids);
         break;
     case ARBOR_BUILD_MEDIAN:
     default:
         if (n <= B->max_leaf)
             return 0;
-        return split_median(B, b, e, axis, kids);
+        return bvh_split_median(B, b, e, axis, kids);
     }
     /* a plane with every centroid on one side (a mean that rounds to the
      * smallest value, or bins of one axis only): fall back to the median */
     if (m == b || m == e)
-        m = split_median(B, b, e, axis, kids);
+        m = bvh_split_median(B, b, e, axis, kids);
     return m;
 }
 

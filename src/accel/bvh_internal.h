@@ -1,7 +1,8 @@
 /*
  * bvh_internal.h - the bounding volume hierarchy's data layout, shared by its
- * builders (bvh_build.c), its traversal (bvh_traverse.c) and its ops table
- * and validator (bvh.c). Private to src/accel.
+ * builders (bvh_build.c, with bvh_builder.h), its traversal
+ * (bvh_traverse.c) and its ops table and validator (bvh.c). Private to
+ * src/accel.
  *
  * The tree is kept twice, in two layouts with different jobs.
  *
