@@ -31,6 +31,7 @@
 
 typedef struct upload_parts {
     char dir[PATH_MAX / 2];       /* the temporary folder */
+    DIR *listing;                 /* dir, opened with it (models_parts_free) */
     FILE *out;                    /* the part being written */
     char out_name[PART_NAME_MAX]; /* its file name in dir */
     uint64_t out_bytes;           /* written of it so far */
@@ -56,6 +57,14 @@ static bool parts_open_dir(http_req *r)
     bool fits = n >= 0 && (size_t)n < sizeof u->dir;
     if (!fits || mkdtemp(u->dir) == NULL) {
         int why = fits ? errno : ENAMETOOLONG; /* for the caller's message, past free */
+        free(u);
+        errno = why;
+        return false;
+    }
+    u->listing = opendir(u->dir);
+    if (u->listing == NULL) {
+        int why = errno;
+        rmdir(u->dir);
         free(u);
         errno = why;
         return false;
@@ -88,17 +97,18 @@ void models_parts_free(http_req *r)
     if (u == NULL)
         return;
     part_close(u);
-    DIR *d = opendir(u->dir);
-    if (d != NULL) {
-        struct dirent *ent;
-        char path[sizeof u->dir + 260];
-        while ((ent = readdir(d)) != NULL)
-            if (strcmp(ent->d_name, ".") != 0 && strcmp(ent->d_name, "..") != 0) {
-                snprintf(path, sizeof path, "%s/%s", u->dir, ent->d_name);
-                unlink(path);
-            }
-        closedir(d);
-    }
+    /* The listing was opened with the folder: reading it again allocates
+     * nothing, so the upload's files go even when memory has run out (an
+     * opendir here failed then, and left them in TMPDIR: test_alloc_fail). */
+    rewinddir(u->listing);
+    struct dirent *ent;
+    char path[sizeof u->dir + 260];
+    while ((ent = readdir(u->listing)) != NULL)
+        if (strcmp(ent->d_name, ".") != 0 && strcmp(ent->d_name, "..") != 0) {
+            snprintf(path, sizeof path, "%s/%s", u->dir, ent->d_name);
+            unlink(path);
+        }
+    closedir(u->listing);
     rmdir(u->dir);
     free(u);
     r->parts = NULL;

@@ -23,6 +23,7 @@
 #define _GNU_SOURCE
 #include <arpa/inet.h>
 #include <errno.h>
+#include <limits.h>
 #include <netinet/in.h>
 #include <pthread.h>
 #include <stdio.h>
@@ -745,6 +746,16 @@ static void test_serve_requests(void)
     /* A folder of its own: the daemon loads what appears in it. */
     snprintf(upload_dir, sizeof upload_dir, "%s/uploads", tmpdir);
     TEST_ASSERT_EQUAL_INT(0, mkdir(upload_dir, 0700));
+    /* and one for the uploads on their way in (TMPDIR), which every failure
+     * must leave empty; set before any server thread reads it */
+    char receiving[96];
+    snprintf(receiving, sizeof receiving, "%s/receiving", tmpdir);
+    TEST_ASSERT_EQUAL_INT(0, mkdir(receiving, 0700));
+    const char *tmpdir_env = getenv("TMPDIR");
+    char saved_tmpdir[PATH_MAX] = "";
+    if (tmpdir_env != NULL)
+        snprintf(saved_tmpdir, sizeof saved_tmpdir, "%s", tmpdir_env);
+    TEST_ASSERT_EQUAL_INT(0, setenv("TMPDIR", receiving, 1));
     /* What the libraries set up once for good at the first server and the
      * first request of each kind (libc's for threads and time zones,
      * libmicrohttpd's) is not the server's to give back. */
@@ -784,6 +795,12 @@ static void test_serve_requests(void)
     arbor_server_stop(srv);
     arbor_store_destroy(s);
     expect_no_leak("server stopped", 0, start);
+    if (saved_tmpdir[0] != '\0')
+        setenv("TMPDIR", saved_tmpdir, 1);
+    else
+        unsetenv("TMPDIR");
+    /* rmdir fails on a folder with anything left in it */
+    TEST_ASSERT_EQUAL_INT_MESSAGE(0, rmdir(receiving), "an upload's temporary folder was left behind");
 }
 
 int main(void)
