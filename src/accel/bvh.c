@@ -2,10 +2,11 @@
  * bvh.c - the bounding volume hierarchy as a tree kind: its arbor_accel_ops
  * table, the tree's memory and bytes, building it (the binary tree, then the
  * wide tree collapsed from it) and its validator. The layouts are described
- * in bvh_internal.h, the builders in bvh_build.c (their splits in
- * bvh_split.c and bvh_sah.c, which only bvh_build.c calls), the wide tree in
- * bvh_wide.c, its statistics in bvh_wide_stats.c and the traversal in
- * bvh_traverse.c; none of those calls another, only this file calls them.
+ * in bvh_internal.h, the builders in bvh_build.c (with their splits in
+ * bvh_split.c and bvh_sah.c, which only the builders call), the wide tree
+ * in bvh_wide.c, its statistics in bvh_wide_stats.c and the traversal in
+ * bvh_traverse.c; none of those four calls another, only this file calls
+ * them.
  *
  * The validator walks the tree on its own, sharing nothing with the
  * builders but the node layout, and recounts every statistic from the walk,

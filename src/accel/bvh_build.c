@@ -61,7 +61,6 @@
  * each node still to be built becomes a leaf, so the recursion unwinds in
  * one pass over the triangles left, and the build then fails.
  */
-#include <assert.h>
 #include <stdlib.h>
 #include <string.h>
 

@@ -171,6 +171,8 @@ bool bvh_sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth,
 bool bvh_sah_split_small(const bvh_builder *B, uint32_t b, uint32_t e, float area, int only_axis, range_box kids[2],
                          uint32_t *m);
 uint32_t bvh_sah_split_pair(const bvh_builder *B, uint32_t b, float area, const build_box *cbox, range_box kids[2]);
+/* Whether a node of at most one pack, which the SAH would split into kids,
+ * stays a leaf for the wide tree's sake (bvh_sah.c). */
 bool bvh_sah_pack_stays_leaf(const bvh_builder *B, float area, uint32_t n, const range_box kids[2]);
 
 #endif

@@ -5,8 +5,8 @@
  * BVH_SAH_EXACT_TRIS triangles, two triangles decided directly, and the
  * rule that keeps a node of one pack a leaf for the wide tree. A split
  * partitions by the bin it costed (bvh_split.c), so the split made is the
- * one costed. The cost model is bvh_build.c's (B->cost_traverse,
- * B->cost_intersect).
+ * one costed. The cost model is sah_stays_leaf's, with the builder's weights
+ * (B->cost_traverse, B->cost_intersect: bvh_build.c sets their defaults).
  */
 #include <assert.h>
 #include <stdlib.h>
@@ -206,7 +206,7 @@ static bool sah_stays_leaf(const bvh_builder *B, float area, double split_an, ui
  * sweeping a bin costs about as much as binning a few triangles, so small
  * nodes given a bin per triangle spent most of their time on empty bins. */
 bool bvh_sah_split(const bvh_builder *B, uint32_t b, uint32_t e, uint32_t depth, float area,
-                      const build_box *cbox, range_box kids[2], uint32_t *m)
+                   const build_box *cbox, range_box kids[2], uint32_t *m)
 {
     uint32_t n = e - b;
     bin_grid g;
@@ -301,9 +301,10 @@ static void small_order(const int32_t *key, uint32_t n, uint8_t *order)
  * and partitioning there (*m: where the right side starts, b when no plane
  * has a finite cost). Near the leaves, where most nodes are, this costs less
  * than clearing and sweeping bins, and finds planes at least as cheap.
- * only_axis >= 0 limits the search to that axis (see choose_split). */
+ * only_axis >= 0 limits the search to that axis (see choose_split in
+ * bvh_build.c). */
 bool bvh_sah_split_small(const bvh_builder *B, uint32_t b, uint32_t e, float area, int only_axis,
-                            range_box kids[2], uint32_t *m)
+                         range_box kids[2], uint32_t *m)
 {
     uint32_t n = e - b;
     bvh_prim *p = B->prims + b;
@@ -359,7 +360,7 @@ bool bvh_sah_split_small(const bvh_builder *B, uint32_t b, uint32_t e, float are
  * node size near the leaves, and clearing and sweeping bins for them cost
  * more than their binning. */
 uint32_t bvh_sah_split_pair(const bvh_builder *B, uint32_t b, float area, const build_box *cbox,
-                               range_box kids[2])
+                            range_box kids[2])
 {
     bvh_range_bounds(B, b, b + 1, &kids[0]);
     bvh_range_bounds(B, b + 1, b + 2, &kids[1]);

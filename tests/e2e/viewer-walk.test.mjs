@@ -10,7 +10,7 @@ import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
-import { withViewer, screenshot, waitFullFrame, repo } from './lib.mjs';
+import { withViewer, screenshot, waitFullFrame, repo, afterPaint } from './lib.mjs';
 
 const T = { timeout: 180000 };
 const STEP = 0.02; // diagonals a key press moves
@@ -280,7 +280,7 @@ test('back from Fly to Orbit with nothing at the frame\'s centre: the view stays
         const answered = page.waitForResponse('**/api/ray');
         await page.check('#cam-orbit');
         await answered;
-        await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+        await afterPaint(page);
         assert.equal(await page.evaluate(() => JSON.stringify(window.arbor.state.view)), before);
         assert.equal(await page.evaluate(() => window.arbor.state.fly), false);
         assert.deepEqual(errors, []);

@@ -10,7 +10,7 @@ import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
 import {
-    withViewer, screenshot, recordRequests, waitFullFrame, framePixels, overlayBox, postJSON,
+    withViewer, screenshot, recordRequests, waitFullFrame, framePixels, overlayBox, postJSON, afterPaint,
 } from './lib.mjs';
 
 const T = { timeout: 180000 };
@@ -580,7 +580,7 @@ test('the boxes line says how many of how many boxes it draws when they are capp
         // the line once the boxes of that depth are in (window.arbor: the page's app) and the panels redrawn
         const info = async (depth) => {
             await page.waitForFunction((dep) => window.arbor.panes[0].boxes?.data?.depth === dep, depth, { timeout: 60000 });
-            await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+            await afterPaint(page);
             return page.textContent('#boxes-info');
         };
         const num = (v) => v.toLocaleString('en-US');

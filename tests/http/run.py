@@ -99,11 +99,14 @@ def main(argv):
 
     signal.signal(signal.SIGALRM, on_alarm)
     # Every temp file and folder the run makes (each daemon's --models, token
-    # files, web roots) goes under one folder, removed when the run ends, so
-    # that no test leaves anything behind in /tmp however it ends; a stopped
-    # daemon's stderr stays readable until then.
+    # files, web roots) and the daemons make (uploads on their way in) goes
+    # under one folder, removed when the run ends, so that no test leaves
+    # anything behind in /tmp however it ends; a stopped daemon's stderr
+    # stays readable until then. The daemons inherit TMPDIR, so the tests
+    # that look for their leftovers (tempfile.gettempdir()) look there.
     run_tmp = tempfile.mkdtemp(prefix="arbor-http-run-")
     tempfile.tempdir = run_tmp
+    os.environ["TMPDIR"] = run_tmp
     failures = ignored = 0
     start_all = time.time()
     try:
