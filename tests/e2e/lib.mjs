@@ -197,6 +197,15 @@ export async function waitFullFrame(page, index = 0, timeout = 30000) {
     return page.$eval(sel, (c) => JSON.parse(c.dataset.camera));
 }
 
+/** Waits until pane `index` shows a full frame, at rest, of another camera than `cam` (a request camera); returns it. */
+export async function waitFrameMovedFrom(page, cam, index = 0, timeout = 30000) {
+    await page.waitForFunction(([c0, i]) => {
+        const c = document.querySelector(`canvas.image[data-pane="${i}"]`);
+        return c && c.dataset.frame === 'full' && !window.arbor.moving && c.dataset.camera !== c0;
+    }, [JSON.stringify(cam), index], { timeout });
+    return waitFullFrame(page, index);
+}
+
 /** Resolves after the page has painted twice: whatever the last change scheduled is drawn. */
 export const afterPaint = (page) => page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
 

@@ -10,7 +10,7 @@ import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import fs from 'node:fs';
 import path from 'node:path';
-import { withViewer, screenshot, waitFullFrame, repo, afterPaint } from './lib.mjs';
+import { withViewer, screenshot, waitFullFrame, waitFrameMovedFrom, repo, afterPaint } from './lib.mjs';
 
 const T = { timeout: 180000 };
 const STEP = 0.02; // diagonals a key press moves
@@ -126,11 +126,7 @@ test('a right-drag pans: the point the view turned about stays under the pointer
         await page.mouse.down({ button: 'right' });
         for (let i = 1; i <= 6; i++) await page.mouse.move(cx + 10 * i, cy + 5 * i);
         await page.mouse.up({ button: 'right' });
-        await page.waitForFunction((c0) => {
-            const c = document.querySelector('canvas.image[data-pane="0"]');
-            return c.dataset.frame === 'full' && !window.arbor.moving && c.dataset.camera !== c0;
-        }, JSON.stringify(cam0), { timeout: 30000 });
-        const cam = await waitFullFrame(page);
+        const cam = await waitFrameMovedFrom(page, cam0);
         const { eye, target } = eyeTarget(cam, bounds);
         // the old target, projected through the new camera (vertical fov over the frame's height), lies where the pointer let go
         const f = norm(sub(target, eye)), r = norm(cross(f, [0, 1, 0])), u = cross(r, f);
@@ -223,11 +219,7 @@ test('back from Fly to Orbit, the view orbits the surface at its centre: the eye
         await page.mouse.down();
         for (let i = 1; i <= 5; i++) await page.mouse.move(box.x + box.width / 2 + 8 * i, box.y + box.height / 2);
         await page.mouse.up();
-        await page.waitForFunction((c0) => {
-            const c = document.querySelector('canvas.image[data-pane="0"]');
-            return c.dataset.frame === 'full' && !window.arbor.moving && c.dataset.camera !== c0;
-        }, JSON.stringify(cam), { timeout: 30000 });
-        const orbited = await waitFullFrame(page);
+        const orbited = await waitFrameMovedFrom(page, cam);
         assert.ok(near(orbited.target, cam.target), `the orbit moved its target: ${orbited.target} vs ${cam.target}`);
         const r = len(sub(orbited.eye, orbited.target));
         assert.ok(Math.abs(r - t) < 1e-3, `the eye is ${r} from the pivot, not ${t}`);

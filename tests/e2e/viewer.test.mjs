@@ -10,7 +10,7 @@ import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
 import {
-    withViewer, screenshot, recordRequests, waitFullFrame, framePixels, overlayBox, postJSON, afterPaint,
+    withViewer, screenshot, recordRequests, waitFullFrame, waitFrameMovedFrom, framePixels, overlayBox, postJSON, afterPaint,
 } from './lib.mjs';
 
 const T = { timeout: 180000 };
@@ -49,10 +49,7 @@ test('a mouse drag changes the frame and sends a render request with a new camer
             await page.waitForTimeout(15);
         }
         await page.mouse.up();
-        await page.waitForFunction((c0) => {
-            const c = document.querySelector('canvas.image[data-pane="0"]');
-            return c.dataset.frame === 'full' && c.dataset.camera !== c0;
-        }, JSON.stringify(cam0), { timeout: 30000 });
+        await waitFrameMovedFrom(page, cam0);
         const after = await framePixels(page);
         await screenshot(page, 'after-drag');
         const sent = rec.renders.slice(n0);
@@ -436,10 +433,7 @@ test('the phone viewport has no horizontal scroll', T, async () => {
             await client.send('Input.dispatchTouchEvent', { type: 'touchMove', touchPoints: [{ x: cx + i * 6, y: cy }] });
         }
         await client.send('Input.dispatchTouchEvent', { type: 'touchEnd', touchPoints: [] });
-        await page.waitForFunction((c0) => {
-            const c = document.querySelector('canvas.image[data-pane="0"]');
-            return c.dataset.frame === 'full' && c.dataset.camera !== c0;
-        }, JSON.stringify(cam0), { timeout: 30000 });
+        await waitFrameMovedFrom(page, cam0);
         await page.click('#tab-compare');
         const w2 = await page.evaluate(() => [document.documentElement.scrollWidth, window.innerWidth]);
         assert.ok(w2[0] <= w2[1], `compare view scroll width ${w2[0]} > ${w2[1]}`);
